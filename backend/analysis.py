@@ -1,0 +1,285 @@
+"""``rehab analyze``: the live pipeline run offline over a recording (contract §6).
+
+The same code feeds the service: :class:`DeviceRun` wraps one device's pipeline with the
+decoder's rejection counters and accumulates what the report needs, so a live session
+and an offline analysis of its recording produce identical files.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from backend import keys, recording, wire
+from estimators.params import PipelineParams
+from estimators.pipeline import Output, Pipeline
+
+CSV_HEADER = (
+    "t,elbow_x,elbow_y,elbow_z,shoulder_x,shoulder_y,shoulder_z,elbow_angle_deg,"
+    "heading_offset_deg,heading_converged,shoulder_displacement_m,state"
+)
+DETAILS_HEADER = (
+    "t,q_w,q_x,q_y,q_z,heading_std_deg,heading_confidence,upper_arm_elevation_deg,"
+    "upper_arm_azimuth_deg,nominal_x,nominal_y,nominal_z,conv_elbow_angle_deg,"
+    "wrist_x,wrist_y,wrist_z,upper_arm_length_m"
+)
+STATE_NAMES = {-1: "", 0: "ok", 1: "outside", 2: "warning"}
+
+
+def _fmt(x: float, digits: int) -> str:
+    return "" if not math.isfinite(x) else f"{x:.{digits}f}"
+
+
+def estimate_lines(rows: dict[str, np.ndarray]) -> list[str]:
+    """Rows of ``estimates.csv`` (contract §6); empty cells where no value exists yet."""
+    out: list[str] = []
+    t = rows["t"].tolist()
+    el = rows["elbow"].tolist()
+    sh = rows["shoulder"].tolist()
+    ang = rows["elbow_angle_deg"].tolist()
+    hdg = rows["heading_offset_deg"].tolist()
+    conv = rows["heading_converged"].tolist()
+    disp = rows["shoulder_displacement_m"].tolist()
+    st = rows["state"].tolist()
+    for i in range(len(t)):
+        out.append(
+            ",".join(
+                (
+                    repr(t[i]),
+                    _fmt(el[i][0], 5), _fmt(el[i][1], 5), _fmt(el[i][2], 5),
+                    _fmt(sh[i][0], 5), _fmt(sh[i][1], 5), _fmt(sh[i][2], 5),
+                    _fmt(ang[i], 3), _fmt(hdg[i], 3), "1" if conv[i] else "0",
+                    _fmt(disp[i], 5), STATE_NAMES[int(st[i])],
+                )
+            )
+        )
+    return out
+
+
+def detail_lines(rows: dict[str, np.ndarray]) -> list[str]:
+    cols = [
+        rows["t"][:, None], rows["q_ra"], rows["heading_std_deg"][:, None],
+        rows["heading_confidence"][:, None], rows["upper_arm_elevation_deg"][:, None],
+        rows["upper_arm_azimuth_deg"][:, None], rows["nominal_shoulder"],
+        rows["conv_elbow_angle_deg"][:, None], rows["wrist"], rows["upper_arm_length_m"][:, None],
+    ]
+    m = np.concatenate(cols, axis=1).tolist()
+    digits = (6, 6, 6, 6, 6, 3, 4, 3, 3, 5, 5, 5, 3, 5, 5, 5, 4)
+    return [",".join(repr(r[0]) if j == 0 else _fmt(r[j], digits[j]) for j in range(len(r))) for r in m]
+
+
+def estimate_payload(rows: dict[str, np.ndarray]) -> dict[str, list[Any]]:
+    """Contract §7 estimate payload: the CSV's columns as parallel arrays (null when empty)."""
+
+    def col(a: np.ndarray) -> list[float | None]:
+        return [None if not math.isfinite(x) else x for x in a.tolist()]
+
+    return {
+        "t": rows["t"].tolist(),
+        "elbow_x": col(rows["elbow"][:, 0]), "elbow_y": col(rows["elbow"][:, 1]),
+        "elbow_z": col(rows["elbow"][:, 2]),
+        "shoulder_x": col(rows["shoulder"][:, 0]), "shoulder_y": col(rows["shoulder"][:, 1]),
+        "shoulder_z": col(rows["shoulder"][:, 2]),
+        "elbow_angle_deg": col(rows["elbow_angle_deg"]),
+        "heading_offset_deg": col(rows["heading_offset_deg"]),
+        "heading_converged": [1 if c else 0 for c in rows["heading_converged"].tolist()],
+        "shoulder_displacement_m": col(rows["shoulder_displacement_m"]),
+        "state": [STATE_NAMES[int(s)] or None for s in rows["state"].tolist()],
+    }
+
+
+@dataclass
+class DeviceRun:
+    """One device's pipeline plus everything the report and the CSV files need."""
+
+    device: str
+    params: PipelineParams
+    pipeline: Pipeline = field(init=False)
+    decode_rejected: dict[str, int] = field(default_factory=dict)
+    est_lines: list[str] = field(default_factory=list)
+    det_lines: list[str] = field(default_factory=list)
+    cycles: list[dict[str, Any]] = field(default_factory=list)
+    unjudged: list[dict[str, Any]] = field(default_factory=list)
+    _stats: dict[str, list[np.ndarray]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.pipeline = Pipeline(self.params)
+
+    def reject(self, reason: str) -> None:
+        self.decode_rejected[reason] = self.decode_rejected.get(reason, 0) + 1
+
+    def take(self, out: Output) -> None:
+        """Accumulate a poll's output (rows for the files, cycles, statistics)."""
+        if out.n:
+            self.est_lines.extend(estimate_lines(out.rows))
+            self.det_lines.extend(detail_lines(out.rows))
+            for k in ("t", "shoulder_displacement_m", "elbow_angle_deg", "upper_arm_elevation_deg",
+                      "upper_arm_azimuth_deg", "heading_converged", "state"):
+                self._stats.setdefault(k, []).append(out.rows[k])
+        for v in out.cycles:
+            d = {
+                "start": v.start, "end": v.end, "outside_fraction": v.outside_fraction,
+                "compensatory": v.compensatory, "coverage": v.coverage,
+                "peak_displacement_m": getattr(v, "peak_displacement_m", None),
+            }
+            (self.cycles if v.compensatory is not None else self.unjudged).append(d)
+
+    def report(self) -> dict[str, Any]:
+        p = self.pipeline
+        st = {k: np.concatenate(v) for k, v in self._stats.items()} if self._stats else {}
+        conv = st.get("heading_converged", np.zeros(0, bool)).astype(bool)
+
+        def rng(name: str) -> dict[str, float | None]:
+            a = st.get(name, np.zeros(0))[conv] if len(conv) else np.zeros(0)
+            a = a[np.isfinite(a)]
+            if not len(a):
+                return {"min": None, "max": None, "p5": None, "p95": None, "range": None}
+            p5, p95 = np.percentile(a, [5, 95])
+            return {"min": float(a.min()), "max": float(a.max()), "p5": float(p5),
+                    "p95": float(p95), "range": float(p95 - p5)}
+
+        disp = st.get("shoulder_displacement_m", np.zeros(0))
+        disp = disp[np.isfinite(disp)]
+        states = st.get("state", np.zeros(0, np.int8))
+        n_comp = sum(1 for c in self.cycles if c["compensatory"])
+        durations = [c["end"] - c["start"] for c in self.cycles]
+        quality = p.quality.as_dict()
+        quality["rejected"] = {**quality["rejected"]}
+        for k, n in self.decode_rejected.items():
+            quality["rejected"][k] = quality["rejected"].get(k, 0) + n
+        return {
+            "device": self.device,
+            "cycles": self.cycles,
+            "unjudged_cycles": self.unjudged,
+            "summary": {
+                "rows": len(self.est_lines),
+                "cycles": len(self.cycles),
+                "compensatory_cycles": n_comp,
+                "compensatory_share": (n_comp / len(self.cycles)) if self.cycles else None,
+                "time_outside_share": float(np.mean(states >= 1)) if np.any(states >= 0) else None,
+            },
+            "heading": {
+                "method": self.params.method,
+                "first_motion_t": p.first_motion_time,
+                "converged_t": p.convergence_time,
+            },
+            "upper_arm_length_m": p.arm_length_estimate or self.params.upper_arm_length_m,
+            "upper_arm_length_estimated": p.arm_length_estimate is not None,
+            "shoulder_displacement_m": {
+                "median": float(np.median(disp)) if len(disp) else None,
+                "p95": float(np.percentile(disp, 95)) if len(disp) else None,
+                "max": float(disp.max()) if len(disp) else None,
+            },
+            "elbow_flexion_deg": rng("elbow_angle_deg"),
+            "upper_arm_elevation_deg": rng("upper_arm_elevation_deg"),
+            "upper_arm_azimuth_deg": rng("upper_arm_azimuth_deg"),
+            "cycle_duration_s": {
+                "median": float(np.median(durations)) if durations else None,
+                "min": min(durations) if durations else None,
+                "max": max(durations) if durations else None,
+            },
+            "data_quality": quality,
+            "params": self.params.to_json(),
+        }
+
+
+def decode_stream(
+    lines: Iterable[tuple[str | None, Any]], prefix: str = keys.DEFAULT_PREFIX
+) -> Iterator[tuple[str | None, wire.Message | wire.WireError]]:
+    """Decode recording lines; yield ``(device, message or error)`` (device None if unknown)."""
+    for key, payload in lines:
+        if key is None:
+            yield None, wire.WireError("malformed_line", "recording line is not {key, payload}")
+            continue
+        try:
+            msg = wire.decode(key, payload, prefix)
+        except wire.WireError as exc:
+            try:
+                dev: str | None = keys.parse(key, prefix).device
+            except keys.KeyError_:
+                dev = None
+            yield dev, exc
+            continue
+        yield msg.device, msg
+
+
+def analyze(
+    path: str | Path,
+    params: PipelineParams,
+    out_dir: str | Path | None = None,
+    device: str | None = None,
+    progress: bool = False,
+) -> tuple[DeviceRun, dict[str, Any]]:
+    """Run the pipeline over a recording; write the contract's files if ``out_dir``."""
+    lines: Iterable[tuple[str | None, Any]] = recording.read(path)
+    if progress:
+        from tqdm import tqdm
+
+        lines = tqdm(lines, unit=" msg", desc="analyze", mininterval=0.5, leave=False)
+    run: DeviceRun | None = None
+    orphan: dict[str, int] = {}
+    others: dict[str, int] = {}
+    for dev, item in decode_stream(lines):
+        if run is None and dev is not None and (device is None or dev == device):
+            run = DeviceRun(dev, params)
+        if run is None or dev != run.device:
+            if dev is None:
+                assert isinstance(item, wire.WireError)
+                orphan[item.reason] = orphan.get(item.reason, 0) + 1
+            else:
+                others[dev] = others.get(dev, 0) + 1
+            continue
+        if isinstance(item, wire.WireError):
+            run.reject(item.reason)
+        else:
+            run.pipeline.feed(item)
+    if run is None:
+        run = DeviceRun(device or "", params)
+    for reason, n in orphan.items():
+        run.decode_rejected[reason] = run.decode_rejected.get(reason, 0) + n
+    run.take(run.pipeline.poll())
+    run.take(run.pipeline.finish())
+    rep = run.report()
+    rep["data_quality"]["other_devices"] = others
+    if out_dir is not None:
+        write_outputs(run, rep, Path(out_dir))
+    return run, rep
+
+
+def write_outputs(run: DeviceRun, report: dict[str, Any], out: Path) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "estimates.csv").write_text(CSV_HEADER + "\n" + "".join(x + "\n" for x in run.est_lines))
+    (out / "details.csv").write_text(DETAILS_HEADER + "\n" + "".join(x + "\n" for x in run.det_lines))
+    (out / "report.json").write_text(json.dumps(report, indent=1, allow_nan=False, default=_json_default))
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(type(o).__name__)
+
+
+def read_estimates(path: str | Path) -> dict[str, np.ndarray]:
+    """Load an ``estimates.csv`` (empty cells → NaN; state as strings)."""
+    text = Path(path).read_text()
+    rd = csv.reader(io.StringIO(text))
+    header = next(rd)
+    rows = list(rd)
+    out: dict[str, np.ndarray] = {}
+    for j, name in enumerate(header):
+        col = [r[j] for r in rows]
+        if name == "state":
+            out[name] = np.array(col, dtype=object)
+        else:
+            out[name] = np.array([float(x) if x else np.nan for x in col])
+    return out

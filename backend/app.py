@@ -1,0 +1,101 @@
+"""The FastAPI application: ``create_app(settings)``.
+
+The lifespan opens what the service holds, in order, and closes it in reverse: storage
+(migrations, first admin, sessions left over from a crash) and auth first, then the live
+side (Zenoh, pipelines, viser) in the marked places.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI
+from fastapi.middleware.cors import CORSMiddleware
+
+from backend.auth.first_admin import ensure_first_admin
+from backend.auth.ratelimit import LoginLimiter
+from backend.auth.secret import load_or_create_secret
+from backend.auth.tokens import TokenSigner
+from backend.db.devices import mark_all_devices_offline
+from backend.db.engine import Database
+from backend.db.sessions import interrupt_active_sessions
+from backend.deps import AppState
+from backend.routers import api_router
+from backend.settings import Settings, get_settings
+
+log = logging.getLogger(__name__)
+
+
+async def open_storage(settings: Settings) -> AppState:
+    """Data dir, database at ``head``, secret, first admin; mark crash leftovers."""
+    # Private: the database and recordings hold patient data.
+    settings.data_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
+    database = Database(settings.db_url)
+    try:
+        await database.migrate()
+        state = AppState(
+            settings=settings,
+            database=database,
+            signer=TokenSigner(load_or_create_secret(settings)),
+            limiter=LoginLimiter(settings.login_max_failures, settings.login_window_s),
+        )
+        async with database.transaction() as db:
+            state.first_admin = await ensure_first_admin(db, settings)
+            state.interrupted_sessions = await interrupt_active_sessions(db)
+            await mark_all_devices_offline(db)
+    except BaseException:
+        await database.dispose()
+        raise
+    if state.first_admin is not None:
+        log.warning(
+            "created admin account %r; credentials in %s",
+            state.first_admin.username,
+            settings.admin_credentials_file,
+        )
+    if state.interrupted_sessions:
+        log.warning("sessions interrupted by the last shutdown: %s", state.interrupted_sessions)
+    return state
+
+
+@asynccontextmanager
+async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+    settings: Settings = app.state.settings
+    state = await open_storage(settings)
+    app.state.rehab = state
+    try:
+        # ---- [live] 1. Zenoh session opens here (settings.zenoh_listen / zenoh_connect,
+        #      settings.key_prefix).
+        # ---- [live] 2. Pipeline manager starts here; it implements backend.deps.LiveHooks:
+        #      `state.live = manager`. It writes through `state.database.transaction()`.
+        # ---- [live] 3. viser server starts here.
+        yield
+    finally:
+        # ---- [live] close in reverse order: 3. viser, 2. pipelines (finish sessions,
+        #      flush recordings), 1. Zenoh.
+        del app.state.rehab
+        await state.database.dispose()
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    settings = settings or get_settings()
+    app = FastAPI(
+        title="rehab-tracking",
+        summary="Real-time shoulder-compensation feedback for robot-assisted arm therapy.",
+        lifespan=lifespan,
+        openapi_url="/api/openapi.json",
+        docs_url="/api/docs",
+        redoc_url=None,
+    )
+    app.state.settings = settings
+    if settings.cors_origins:
+        app.add_middleware(
+            CORSMiddleware,
+            allow_origins=settings.cors_origins,
+            allow_credentials=True,
+            allow_methods=["*"],
+            allow_headers=["*"],
+        )
+    app.include_router(api_router)
+    return app

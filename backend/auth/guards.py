@@ -1,0 +1,120 @@
+"""Route guards: the logged-in therapist, admins only, and the overlay's scoped token."""
+
+from __future__ import annotations
+
+from typing import Annotated, NamedTuple
+
+from fastapi import Depends, HTTPException, Query, WebSocketException, status
+from fastapi.security import HTTPBearer
+from sqlalchemy import select
+from starlette.requests import HTTPConnection
+
+from backend.auth.tokens import InvalidToken
+from backend.db.models import Device, Session, Therapist
+from backend.deps import DB, AppState, State
+
+
+class _BearerToken(HTTPBearer):
+    """The bearer token if any, on HTTP and WebSocket alike (HTTPBearer itself wants a
+    Request); still a security scheme, so the OpenAPI documents it."""
+
+    async def __call__(self, conn: HTTPConnection) -> str | None:  # type: ignore[override]
+        scheme, _, token = conn.headers.get("authorization", "").partition(" ")
+        return (token.strip() or None) if scheme.lower() == "bearer" else None
+
+
+_bearer = _BearerToken(
+    scheme_name="bearer", auto_error=False, description="Access token from POST /api/auth/login"
+)
+
+
+def _unauthorized(conn: HTTPConnection, detail: str) -> Exception:
+    if conn.scope["type"] == "websocket":
+        return WebSocketException(status.WS_1008_POLICY_VIOLATION, detail)
+    return HTTPException(
+        status.HTTP_401_UNAUTHORIZED, detail, headers={"WWW-Authenticate": "Bearer"}
+    )
+
+
+async def current_therapist(
+    conn: HTTPConnection, state: State, db: DB, bearer: Annotated[str | None, Depends(_bearer)]
+) -> Therapist:
+    """The active therapist behind the bearer token, else behind the session cookie.
+
+    Works for WebSocket routes too (the browser sends the cookie with the upgrade request);
+    there a refusal closes with 1008.
+    """
+    token = bearer or conn.cookies.get(state.settings.cookie_name)
+    if not token:
+        raise _unauthorized(conn, "not authenticated")
+    try:
+        therapist_id = state.signer.decode_access(token)
+    except InvalidToken:
+        raise _unauthorized(conn, "invalid or expired token") from None
+    therapist = await db.get(Therapist, therapist_id)
+    # End the read transaction: the connection goes back to the pool (a WebSocket route
+    # would otherwise hold it for its whole life); the object stays loaded and attached.
+    await db.commit()
+    if therapist is None or not therapist.active:
+        raise _unauthorized(conn, "account unknown or deactivated")
+    return therapist
+
+
+CurrentTherapist = Annotated[Therapist, Depends(current_therapist)]
+
+
+async def require_admin(therapist: CurrentTherapist) -> Therapist:
+    if not therapist.is_admin:
+        raise HTTPException(status.HTTP_403_FORBIDDEN, "administrators only")
+    return therapist
+
+
+AdminTherapist = Annotated[Therapist, Depends(require_admin)]
+
+
+class OverlayGrant(NamedTuple):
+    """What an overlay token allows: the live feedback of ``device`` during ``session_id``."""
+
+    device: str
+    session_id: int
+
+
+class OverlayDenied(Exception):
+    pass
+
+
+async def verify_overlay_token(state: AppState, token: str) -> OverlayGrant:
+    """Check signature, expiry, and that the session is still active on that device.
+
+    Raises :class:`OverlayDenied`. A stopped or interrupted session revokes its links.
+    """
+    try:
+        device, session_id = state.signer.decode_overlay(token)
+    except InvalidToken:
+        raise OverlayDenied("invalid or expired overlay token") from None
+    async with state.database.session() as db:
+        row = (
+            await db.execute(
+                select(Session.status, Device.name)
+                .join(Session.device)
+                .where(Session.id == session_id)
+            )
+        ).first()
+    if row is None or row.status != "active":
+        raise OverlayDenied("session is not active")
+    if row.name != device:
+        raise OverlayDenied("token is for another device")
+    return OverlayGrant(device, session_id)
+
+
+async def overlay_grant(
+    conn: HTTPConnection, state: State, token: Annotated[str, Query(min_length=1)]
+) -> OverlayGrant:
+    """Dependency for the overlay's routes (``?token=...``), HTTP or WebSocket."""
+    try:
+        return await verify_overlay_token(state, token)
+    except OverlayDenied as exc:
+        raise _unauthorized(conn, str(exc)) from None
+
+
+OverlayAccess = Annotated[OverlayGrant, Depends(overlay_grant)]

@@ -1,0 +1,59 @@
+"""The device registry, written by the Zenoh ingest and read by the REST layer."""
+
+from __future__ import annotations
+
+from datetime import datetime, timedelta
+from typing import Any
+
+from sqlalchemy import select, update
+from sqlalchemy.dialects.postgresql import insert as pg_insert
+from sqlalchemy.dialects.sqlite import insert as sqlite_insert
+from sqlalchemy.ext.asyncio import AsyncSession
+
+from backend.db.base import utcnow
+from backend.db.models import Device
+
+
+async def touch_device(
+    db: AsyncSession,
+    name: str,
+    *,
+    seen_at: datetime | None = None,
+    stats: dict[str, Any] | None = None,
+) -> None:
+    """Register ``name`` on first sight, else mark it online and seen at ``seen_at`` (now).
+
+    One upsert statement, so concurrent callers never collide on the unique name. ``stats``
+    (rates, rejected-message counters, ...) replaces the stored snapshot when given. Meant to
+    be called about once a second per device, not per message.
+    """
+    now = seen_at or utcnow()
+    values: dict[str, Any] = {"name": name, "first_seen": now, "last_seen": now, "status": "online"}
+    changes: dict[str, Any] = {"last_seen": now, "status": "online"}
+    if stats is not None:
+        values["stats"] = changes["stats"] = stats
+    insert = pg_insert if db.get_bind().dialect.name == "postgresql" else sqlite_insert
+    stmt = insert(Device).values(**values)
+    await db.execute(stmt.on_conflict_do_update(index_elements=["name"], set_=changes))
+
+
+async def mark_device_offline(db: AsyncSession, name: str) -> None:
+    """For the ingest when a device's liveliness token disappears."""
+    await db.execute(update(Device).where(Device.name == name).values(status="offline"))
+
+
+async def mark_all_devices_offline(db: AsyncSession) -> None:
+    """At start: whatever a previous run saw is stale until data arrives again."""
+    await db.execute(update(Device).values(status="offline"))
+
+
+async def get_device(db: AsyncSession, name: str) -> Device | None:
+    return await db.scalar(select(Device).where(Device.name == name))
+
+
+def is_online(device: Device, offline_after_s: float, now: datetime | None = None) -> bool:
+    """Online = the ingest says so and data arrived recently (covers a dead ingest task)."""
+    now = now or utcnow()
+    return device.status == "online" and now - device.last_seen <= timedelta(
+        seconds=offline_after_s
+    )

@@ -1,0 +1,69 @@
+"""Contract recordings (§5): JSON Lines, one Zenoh message per line, plain or gzip.
+
+``{"key": "<key expression>", "payload": <payload object>}`` in the order received.
+Reading yields raw ``(key, payload)`` pairs and never raises on a bad line: a line that
+is not such an object is yielded as ``(None, text)`` so the caller can count it.
+"""
+
+from __future__ import annotations
+
+import gzip
+import io
+import json
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import IO, Any
+
+Line = tuple[str | None, Any]
+
+
+def _open_text(path: Path, mode: str) -> IO[str]:
+    if path.suffix == ".gz":
+        return io.TextIOWrapper(gzip.open(path, mode + "b", compresslevel=6), encoding="utf-8")
+    return open(path, mode, encoding="utf-8")  # noqa: SIM115
+
+
+def read(path: str | Path) -> Iterator[Line]:
+    """Yield ``(key, payload)`` per line; ``(None, raw_line)`` for a line that is not valid."""
+    with _open_text(Path(path), "r") as fh:
+        for line in fh:
+            if not line.strip():
+                continue
+            try:
+                obj = json.loads(line)
+            except ValueError:
+                yield None, line[:200]
+                continue
+            if not isinstance(obj, dict) or not isinstance(obj.get("key"), str) or "payload" not in obj:
+                yield None, line[:200]
+                continue
+            yield obj["key"], obj["payload"]
+
+
+def write(path: str | Path, messages: Iterable[tuple[str, Any]]) -> int:
+    """Write ``(key, payload)`` pairs; return how many were written."""
+    n = 0
+    with _open_text(Path(path), "w") as fh:
+        for key, payload in messages:
+            fh.write(json.dumps({"key": key, "payload": payload}, separators=(",", ":")))
+            fh.write("\n")
+            n += 1
+    return n
+
+
+class Writer:
+    """Append-only recorder that flushes to the OS on demand (crash safety is the caller's)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._fh = _open_text(self.path, "a")
+
+    def append(self, key: str, payload: Any) -> None:
+        self._fh.write(json.dumps({"key": key, "payload": payload}, separators=(",", ":")))
+        self._fh.write("\n")
+
+    def flush(self) -> None:
+        self._fh.flush()
+
+    def close(self) -> None:
+        self._fh.close()

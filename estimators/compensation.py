@@ -1,0 +1,422 @@
+"""Shoulder displacement, indicator state and compensatory episodes (paper §3.4; contract §3).
+
+Passon et al. 2020, §3.4 ("Detection of Compensatory Motions for Biofeedback"): the estimated
+shoulder position is compared with the nominal (therapeutically desired) one; a displacement
+beyond ±10 cm is *outside*; the indicator turns orange (*warning*) when the shoulder has been
+outside "for longer than a short user-defined duration, which might be chosen as a percentage of
+the current cycle duration". For non-repetitive tasks the paper suggests a tolerated time instead
+of the per-cycle rule (20 % of their cycles was about 1 s); :class:`EpisodeTracker` reports such
+episodes. The per-cycle verdict lives in :mod:`estimators.verdicts`.
+
+Pure numpy. Everything streaming is chunk-invariant: the same samples fed in any chunking give
+bit-identical outputs.
+
+Time weighting, used consistently here and in :mod:`estimators.verdicts`: sample ``i`` stands for
+the interval ``[t[i], t[i] + min(t[i+1] - t[i], max_hold_s))`` (zero-order hold, capped so that a
+data gap is not filled with a stale state). A gap longer than ``max_hold_s`` also breaks an
+outside run.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal, TypeAlias
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+FloatArray: TypeAlias = NDArray[np.float64]
+CodeArray: TypeAlias = NDArray[np.int8]
+
+UNKNOWN = -1
+OK = 0
+OUTSIDE = 1
+WARNING = 2
+STATE_NAMES: tuple[str, str, str] = ("ok", "outside", "warning")
+"""Contract §3 state names, indexed by code (``OK``, ``OUTSIDE``, ``WARNING``)."""
+
+Norm: TypeAlias = Literal["horizontal", "3d"]
+
+
+@dataclass(frozen=True, slots=True)
+class CompensationParams:
+    """Parameters of the compensation rule (contract §4 names where they exist).
+
+    - ``tolerance_m``: displacement beyond which the shoulder is *outside*, m (paper: 0.10).
+    - ``max_outside_fraction``: a cycle is compensatory when outside for more than this fraction
+      of its duration (paper: 0.20).
+    - ``displacement_norm``: ``"horizontal"`` (distance in the robot x-y plane, z is up; the
+      top-view circle of the paper's indicator) or ``"3d"``.
+    - ``warning_after_s``: tolerated continuous outside time before *warning*, s. ``None``: the
+      tolerated time is ``max_outside_fraction`` × the duration of the last completed cycle
+      (see :meth:`Indicator.cycle_completed`), ``default_warning_after_s`` before any cycle.
+    - ``default_warning_after_s``: s (paper: 20 % of their cycles ≈ 1 s).
+    - ``min_coverage``: a cycle is judged only if known states cover at least this fraction of
+      its duration.
+    - ``max_hold_s``: longest interval one sample stands for, s; longer gaps count as unknown and
+      break outside runs. Must exceed the robot sample interval (0.1 s at 10 Hz).
+    """
+
+    tolerance_m: float = 0.10
+    max_outside_fraction: float = 0.20
+    displacement_norm: Norm = "horizontal"
+    warning_after_s: float | None = None
+    default_warning_after_s: float = 1.0
+    min_coverage: float = 0.8
+    max_hold_s: float = 0.25
+
+    def __post_init__(self) -> None:
+        if not self.tolerance_m > 0.0:
+            raise ValueError("tolerance_m must be > 0")
+        if not 0.0 <= self.max_outside_fraction <= 1.0:
+            raise ValueError("max_outside_fraction must be in [0, 1]")
+        if self.displacement_norm not in ("horizontal", "3d"):
+            raise ValueError("displacement_norm must be 'horizontal' or '3d'")
+        if self.warning_after_s is not None and not self.warning_after_s >= 0.0:
+            raise ValueError("warning_after_s must be >= 0 or None")
+        if not self.default_warning_after_s >= 0.0:
+            raise ValueError("default_warning_after_s must be >= 0")
+        if not 0.0 <= self.min_coverage <= 1.0:
+            raise ValueError("min_coverage must be in [0, 1]")
+        if not self.max_hold_s > 0.0:
+            raise ValueError("max_hold_s must be > 0")
+
+
+def displacement(shoulder: ArrayLike, nominal: ArrayLike, norm: Norm = "horizontal") -> FloatArray:
+    """Distance between estimated and nominal shoulder positions (contract §3).
+
+    ``shoulder`` (N,3) m and ``nominal`` (3,) or (N,3) m, robot frame (z up). ``norm``:
+    ``"horizontal"`` uses x and y only, ``"3d"`` all three. Returns (N,) m; NaN wherever an
+    input component used by the norm is NaN (no estimate, or no nominal yet).
+    Elementwise IEEE arithmetic only, so results do not depend on how samples are chunked.
+    """
+    s = np.asarray(shoulder, dtype=np.float64)
+    n = np.asarray(nominal, dtype=np.float64)
+    if s.ndim != 2 or s.shape[1] != 3:
+        raise ValueError("shoulder must have shape (N, 3)")
+    if n.shape not in ((3,), s.shape):
+        raise ValueError("nominal must have shape (3,) or (N, 3)")
+    d = s - n
+    dx, dy, dz = d[:, 0], d[:, 1], d[:, 2]
+    sq = dx * dx + dy * dy
+    if norm == "3d":
+        sq = sq + dz * dz
+    elif norm != "horizontal":
+        raise ValueError("norm must be 'horizontal' or '3d'")
+    out: FloatArray = np.sqrt(sq)
+    return out
+
+
+def state_name(code: int) -> str | None:
+    """Contract name of a state code; ``None`` for ``UNKNOWN``."""
+    return STATE_NAMES[code] if 0 <= code < len(STATE_NAMES) else None
+
+
+class Indicator:
+    """Per-sample indicator state (contract §3; paper §3.4 and Figure 5), streaming.
+
+    ``update(t, displacement)`` classifies each sample:
+
+    - ``UNKNOWN`` (-1) where the displacement is NaN (no estimate or no nominal shoulder yet);
+    - ``OK`` (0) where displacement ≤ ``tolerance_m``;
+    - ``OUTSIDE`` (1) where displacement > ``tolerance_m``;
+    - ``WARNING`` (2) where the sample is outside and the current outside run started more than
+      the tolerated duration earlier: ``t[i] - t[run start] > tolerated``. A run is a sequence
+      of consecutive outside samples; an ``OK`` or ``UNKNOWN`` sample or a gap longer than
+      ``max_hold_s`` ends it.
+
+    Tolerated duration, in order of precedence: the ``tolerated_s`` argument of the call (one
+    value for the whole chunk: chunk-invariant only if the caller's value is), else
+    ``params.warning_after_s``, else ``max_outside_fraction`` × the duration of the last cycle
+    reported with :meth:`cycle_completed` (effective from samples with ``t >= end``), else
+    ``params.default_warning_after_s``.
+
+    State-change events (contract §7 ``{"type": "state"}``): ``UNKNOWN`` is not a state and is
+    transparent for them. An event ``(t, name)`` is emitted at the first known sample ever and
+    whenever a known sample's state differs from the previous *known* sample's state; a gap of
+    unknown samples between two samples in the same state emits nothing. Consumers therefore
+    always hold the latest known state.
+    """
+
+    _SMALL = 8  # chunks up to this size take the scalar path (same arithmetic, less overhead)
+
+    def __init__(self, params: CompensationParams | None = None) -> None:
+        self.params = params if params is not None else CompensationParams()
+        self._t_last = -math.inf  # time of the last sample seen
+        self._run_start: float | None = None  # start of the ongoing outside run
+        self._last_known = -9  # code of the last known sample (-9: none yet)
+        self._tol = self.params.default_warning_after_s
+        self._sched_t: list[float] = []  # pending tolerated-duration changes (effective time)
+        self._sched_v: list[float] = []
+
+    @property
+    def tolerated_s(self) -> float:
+        """Tolerated duration currently in force (before pending changes), s."""
+        if self.params.warning_after_s is not None:
+            return self.params.warning_after_s
+        return self._tol
+
+    def cycle_completed(self, start: float, end: float) -> None:
+        """Report a completed cycle ``[start, end)`` (s); with ``warning_after_s=None`` the
+        tolerated duration becomes ``max_outside_fraction * (end - start)`` for samples with
+        ``t >= end``. Call it before :meth:`update` of the chunk that contains ``end`` (the
+        segmenter reports a boundary in the call whose data reaches it, so: segment first,
+        then update the indicator). If samples past ``end`` were already processed the change
+        applies from the next sample."""
+        if self.params.warning_after_s is not None or not end > start:
+            return
+        value = self.params.max_outside_fraction * (end - start)
+        i = bisect.bisect_right(self._sched_t, end)
+        self._sched_t.insert(i, end)
+        self._sched_v.insert(i, value)
+
+    def update(
+        self,
+        t: ArrayLike,
+        displacement: ArrayLike,
+        tolerated_s: float | None = None,
+        boundaries: Sequence[float] = (),
+    ) -> tuple[CodeArray, list[tuple[float, str]]]:
+        """Classify a chunk.
+
+        ``t`` (N,) s strictly increasing (also across calls); ``displacement`` (N,) m, NaN for
+        no estimate. ``tolerated_s``: override of the tolerated duration for this chunk, s.
+        ``boundaries``: convenience; every item with a ``cycle_start`` attribute that is not
+        ``None`` (the :class:`estimators.cycles.Boundary` objects) is passed to
+        :meth:`cycle_completed` first. Returns ``codes`` (N,) int8 and the state-change events
+        ``[(t, "ok" | "outside" | "warning"), ...]`` in time order.
+        """
+        for b in boundaries:
+            cs = getattr(b, "cycle_start", None)
+            if cs is not None:
+                self.cycle_completed(float(cs), float(b))
+        tt = np.asarray(t, dtype=np.float64)
+        dd = np.asarray(displacement, dtype=np.float64)
+        if tt.shape != dd.shape or tt.ndim != 1:
+            raise ValueError("t and displacement must both have shape (N,)")
+        n = tt.shape[0]
+        if n == 0:
+            return np.zeros(0, dtype=np.int8), []
+        if tolerated_s is None and self.params.warning_after_s is not None:
+            tolerated_s = self.params.warning_after_s
+        if n <= self._SMALL:
+            return self._update_small(tt.tolist(), dd.tolist(), tolerated_s)
+        return self._update_vector(tt, dd, tolerated_s)
+
+    # -- tolerated duration per sample ------------------------------------------------------
+
+    def _advance_schedule(self, upto: float) -> None:
+        """Apply scheduled changes effective at or before ``upto``."""
+        k = bisect.bisect_right(self._sched_t, upto)
+        if k:
+            self._tol = self._sched_v[k - 1]
+            del self._sched_t[:k]
+            del self._sched_v[:k]
+
+    # -- scalar path (small chunks) -----------------------------------------------------------
+
+    def _update_small(
+        self, ts: list[float], ds: list[float], override: float | None
+    ) -> tuple[CodeArray, list[tuple[float, str]]]:
+        tol_m = self.params.tolerance_m
+        hold = self.params.max_hold_s
+        codes: list[int] = []
+        changes: list[tuple[float, str]] = []
+        t_last = self._t_last
+        run = self._run_start
+        last_known = self._last_known
+        for ti, di in zip(ts, ds, strict=True):
+            if self._sched_t and self._sched_t[0] <= ti:
+                self._advance_schedule(ti)
+            tol = self._tol if override is None else override
+            if di != di:  # NaN
+                code = UNKNOWN
+                run = None
+            elif di > tol_m:
+                if run is None or ti - t_last > hold:
+                    run = ti
+                code = WARNING if ti - run > tol else OUTSIDE
+            else:
+                code = OK
+                run = None
+            if code != UNKNOWN and code != last_known:
+                changes.append((ti, STATE_NAMES[code]))
+                last_known = code
+            codes.append(code)
+            t_last = ti
+        self._t_last = t_last
+        self._run_start = run
+        self._last_known = last_known
+        return np.array(codes, dtype=np.int8), changes
+
+    # -- vector path ------------------------------------------------------------------------
+
+    def _update_vector(
+        self, t: FloatArray, d: FloatArray, override: float | None
+    ) -> tuple[CodeArray, list[tuple[float, str]]]:
+        n = t.shape[0]
+        unknown = np.isnan(d)
+        outside = d > self.params.tolerance_m  # NaN compares False
+        # tolerated duration per sample
+        tol: float | FloatArray
+        if override is not None:
+            tol = override
+            self._advance_schedule(float(t[-1]))
+        elif self._sched_t and self._sched_t[0] <= t[-1]:
+            k = bisect.bisect_right(self._sched_t, float(t[-1]))
+            times = np.array(self._sched_t[:k])
+            values = np.array([self._tol, *self._sched_v[:k]])
+            tol = values[np.searchsorted(times, t, side="right")]
+            self._advance_schedule(float(t[-1]))
+        else:
+            tol = self._tol
+        # outside runs: a run starts at an outside sample whose predecessor is not outside or
+        # lies more than max_hold_s earlier
+        prev_t = np.empty(n)
+        prev_t[0] = self._t_last
+        prev_t[1:] = t[:-1]
+        gap = (t - prev_t) > self.params.max_hold_s
+        prev_out = np.empty(n, dtype=bool)
+        prev_out[0] = self._run_start is not None
+        prev_out[1:] = outside[:-1]
+        starts = outside & (~prev_out | gap)
+        idx = np.where(starts, np.arange(n), -1)
+        np.maximum.accumulate(idx, out=idx)
+        carried = self._run_start if self._run_start is not None else math.nan
+        run_start = np.where(idx >= 0, t[idx], carried)
+        warning = outside & ((t - run_start) > tol)
+        codes = np.where(unknown, UNKNOWN, np.where(warning, WARNING, outside.astype(np.int8)))
+        codes = codes.astype(np.int8)
+        # state changes among known samples
+        known = np.flatnonzero(~unknown)
+        changes: list[tuple[float, str]] = []
+        if known.size:
+            kc = codes[known]
+            prev = np.empty_like(kc)
+            prev[0] = self._last_known
+            prev[1:] = kc[:-1]
+            for i in np.flatnonzero(kc != prev).tolist():
+                changes.append((float(t[known[i]]), STATE_NAMES[int(kc[i])]))
+            self._last_known = int(kc[-1])
+        self._run_start = float(run_start[-1]) if outside[-1] else None
+        self._t_last = float(t[-1])
+        return codes, changes
+
+
+@dataclass(frozen=True, slots=True)
+class Episode:
+    """A compensatory episode: an outside run that reached *warning* (tolerated-time rule).
+
+    ``start``: time of the run's first outside sample, s; ``end``: end of the run's last sample
+    interval (the next sample's time, at most ``max_hold_s`` later), s; ``duration_s = end -
+    start``; ``max_displacement_m``: peak displacement over the run (NaN if not given).
+    """
+
+    start: float
+    end: float
+    duration_s: float
+    max_displacement_m: float
+
+
+class EpisodeTracker:
+    """Streaming detector of compensatory episodes for non-repetitive tasks (paper §3.4).
+
+    Consumes the :class:`Indicator` codes. An episode is a contiguous outside run (codes
+    ``OUTSIDE``/``WARNING``; ended by ``OK``, ``UNKNOWN`` or a gap > ``max_hold_s``) that
+    contains at least one ``WARNING`` sample, i.e. it lasted longer than the tolerated duration
+    in force; so an episode is reported exactly when the indicator showed orange. It is reported
+    by the call that sees the sample ending the run (or by :meth:`flush`).
+    """
+
+    def __init__(self, params: CompensationParams | None = None) -> None:
+        self.params = params if params is not None else CompensationParams()
+        self._t_last = -math.inf
+        self._start: float | None = None  # ongoing run
+        self._warned = False
+        self._peak = -math.inf
+
+    def update(
+        self, t: ArrayLike, codes: ArrayLike, displacement: ArrayLike | None = None
+    ) -> list[Episode]:
+        """``t`` (N,) s, ``codes`` (N,) indicator codes, ``displacement`` (N,) m (optional,
+        for the peak). Returns the episodes that ended in this chunk."""
+        tt = np.asarray(t, dtype=np.float64)
+        cc = np.asarray(codes, dtype=np.int8)
+        n = tt.shape[0]
+        if cc.shape != (n,):
+            raise ValueError("t and codes must both have shape (N,)")
+        dd = np.full(n, np.nan) if displacement is None else np.asarray(displacement, np.float64)
+        if n == 0:
+            return []
+        hold = self.params.max_hold_s
+        out_mask = cc >= OUTSIDE
+        prev_t = np.empty(n)
+        prev_t[0] = self._t_last
+        prev_t[1:] = tt[:-1]
+        gap = (tt - prev_t) > hold
+        prev_out = np.empty(n, dtype=bool)
+        prev_out[0] = self._start is not None
+        prev_out[1:] = out_mask[:-1]
+        # run boundaries: a run ends before sample i if i-1 was outside and (i not outside or gap)
+        ends = np.flatnonzero(prev_out & (~out_mask | gap))
+        starts = np.flatnonzero(out_mask & (~prev_out | gap))
+        episodes: list[Episode] = []
+        # walk the (few) run starts/ends in order
+        si = 0
+        pos = 0
+        for e in ends.tolist():
+            # the run ending at e began at the latest start < e, or was carried in
+            while si < starts.size and starts[si] < e:
+                self._open(float(tt[starts[si]]))
+                pos = int(starts[si])
+                si += 1
+            self._absorb(cc, dd, pos, e)
+            t_prev = float(prev_t[e])
+            end = t_prev + min(float(tt[e]) - t_prev, hold)
+            ep = self._close(end)
+            if ep is not None:
+                episodes.append(ep)
+            pos = e
+        while si < starts.size:
+            self._open(float(tt[starts[si]]))
+            pos = int(starts[si])
+            si += 1
+        self._absorb(cc, dd, pos, n)
+        self._t_last = float(tt[-1])
+        return episodes
+
+    def flush(self) -> list[Episode]:
+        """End of data: close an ongoing run at the last sample's time."""
+        ep = self._close(self._t_last) if self._start is not None else None
+        return [ep] if ep is not None else []
+
+    def _open(self, start: float) -> None:
+        self._start = start
+        self._warned = False
+        self._peak = -math.inf
+
+    def _absorb(self, cc: CodeArray, dd: FloatArray, lo: int, hi: int) -> None:
+        """Fold samples ``lo:hi`` of the chunk into the ongoing run (if any)."""
+        if self._start is None or hi <= lo:
+            return
+        seg = cc[lo:hi]
+        m = seg >= OUTSIDE
+        if not m.any():
+            return
+        if (seg[m] == WARNING).any():
+            self._warned = True
+        vals = dd[lo:hi][m]
+        vals = vals[~np.isnan(vals)]
+        if vals.size:
+            self._peak = max(self._peak, float(vals.max()))
+
+    def _close(self, end: float) -> Episode | None:
+        start = self._start
+        self._start = None
+        if start is None or not self._warned:
+            return None
+        peak = self._peak if self._peak > -math.inf else math.nan
+        return Episode(start, end, end - start, peak)

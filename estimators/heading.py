@@ -1,0 +1,366 @@
+"""Relative-heading estimation between the IMU's reference frame I and the robot frame R.
+
+Passon et al. 2020, §3.2: the elbow acceleration seen by the IMU (``a``, frame I) and the
+robot (``b``, frame R) differ only by a rotation ``Rz(δ)`` about the vertical. The cost of
+eqs. 3–4 over a window,
+
+    c(δ) = Σ_k ‖Rz(δ) a_k − b_k‖² = C − 2 (S_c cos δ + S_s sin δ),
+    S_c = Σ (a_x b_x + a_y b_y),  S_s = Σ (a_x b_y − a_y b_x),
+
+is a sinusoid in δ, so the paper's grid search (eqs. 5–8) needs only two sums, and the
+exact minimiser is ``atan2(S_s, S_c)`` (used by the ``improved`` method for sub-degree
+heading). The improved method also fits a linear heading drift inside the window (the gyro
+bias turns frame I at up to ~0.5 °/s, i.e. 10° across a 20 s window), predicts the drift
+between updates, and reports an uncertainty so callers know when heading is poorly
+observable.
+
+Angles are radians inside, degrees in parameters.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal, TypeAlias
+
+import numpy as np
+from numpy.typing import NDArray
+
+Array: TypeAlias = NDArray[np.float64]
+Method = Literal["paper", "improved"]
+
+
+@dataclass(frozen=True, slots=True)
+class HeadingParams:
+    """Schedule and search constants. Defaults are the improved method; see :meth:`paper`."""
+
+    method: Method = "improved"
+    update_interval_s: float = 1.0  # paper: 5 s
+    window_s: float = 20.0  # paper: last 20 s (motion test and, for the paper, the fit)
+    fit_window_s: float = 40.0  # improved: the drift-modelled fit uses this much history
+    n_subwindows: int = 5  # paper: five 4 s sub-windows
+    motion_diameter_m: float = 0.10  # paper: sphere of 10 cm diameter
+    min_motion_subwindows: int = 3  # paper: at least three
+    coarse_step_deg: float = 5.0  # eq. 6
+    fine_halfwidth_deg: float = 5.0  # eqs. 7–8
+    fine_step_deg: float = 1.0
+    n_two_step: int = 5  # two-step update for the first five counted windows
+    converge_count: int = 5  # last five estimates ...
+    converge_tol_deg: float = 5.0  # ... each within 5° of the previous
+    # improved method only
+    min_excitation: float = 0.03  # m/s², rms horizontal elbow acceleration after low-pass
+    drift_prior_std_dps: float = 0.5  # prior on the heading drift rate, °/s
+    max_converge_std_deg: float = 2.5  # converged only when this certain
+    effective_rate_hz: float = 1.0  # independent samples per second after a 0.5 Hz low-pass
+    estimate_lag: bool = True  # estimate the robot's latency against the IMU (improved)
+    estimate_sensor_errors: bool = True  # fit accelerometer bias and lever-arm error (improved)
+    acc_bias_prior: float = 0.3  # m/s², prior std of each accelerometer bias component
+    lever_prior: float = 0.05  # m, prior std of each component of the IMU→elbow lever error
+    max_lag_s: float = 0.15  # search range ± for that latency
+
+    @classmethod
+    def paper(cls) -> HeadingParams:
+        """The paper's schedule exactly (§3.2.2)."""
+        return cls(method="paper", update_interval_s=5.0)
+
+
+@dataclass(slots=True)
+class HeadingState:
+    """Mutable schedule state (the ``zi`` of the heading estimator)."""
+
+    delta: float | None = None  # rad, valid at ``t_update``
+    rate: float = 0.0  # rad/s, predicted drift (improved)
+    t_update: float = -math.inf
+    std: float = math.inf  # rad, uncertainty at ``t_update``
+    converged: bool = False
+    n_counted: int = 0
+    history: list[float] = field(default_factory=list)  # accepted estimates, rad
+    t_converged: float | None = None
+    excitation: float = 0.0  # last window's rms horizontal elbow acceleration, m/s²
+    acc_bias: Array = field(default_factory=lambda: np.zeros(3))  # m/s², sensor frame
+    lever_error: Array = field(default_factory=lambda: np.zeros(3))  # m, sensor frame
+    lag: float = 0.0  # s, robot stamps later than the IMU's by this much (running estimate)
+    lag_weight: float = 0.0  # accumulated information behind ``lag``
+
+
+@dataclass(frozen=True, slots=True)
+class Window:
+    """One update window on the fusion grid (n samples, oldest first)."""
+
+    t: Array  # (n,) s
+    a: Array  # (n, 3) elbow acceleration from the IMU, frame I, low-passed, m/s²
+    b: Array  # (n, 3) elbow acceleration from the robot, frame R, low-passed, m/s²
+    p: Array  # (n, 3) elbow position from the robot, m (for the motion test)
+    valid: Array  # (n,) bool
+    cl: Array | None = None  # (n, 18) sensor axes x, y, z in I (9), their 2nd derivative (9)
+
+
+def wrap(x: float) -> float:
+    """Angle to (−π, π]."""
+    return math.atan2(math.sin(x), math.cos(x))
+
+
+def sums(a: Array, b: Array) -> tuple[float, float]:
+    """``(S_c, S_s)`` of the cost's sinusoid (horizontal components only)."""
+    sc = float(np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]))
+    ss = float(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]))
+    return sc, ss
+
+
+def cost(delta: Array, a: Array, b: Array) -> Array:
+    """Eq. 4 evaluated directly for each δ in ``delta`` (rad); reference for tests."""
+    c, s = np.cos(delta)[:, None], np.sin(delta)[:, None]
+    rx = c * a[None, :, 0] - s * a[None, :, 1] - b[None, :, 0]
+    ry = s * a[None, :, 0] + c * a[None, :, 1] - b[None, :, 1]
+    rz = a[None, :, 2] - b[None, :, 2]
+    return np.sum(rx * rx + ry * ry + rz * rz, axis=1)  # type: ignore[no-any-return]
+
+
+def optdelta(grid: Array, sc: float, ss: float) -> float:
+    """Eq. 5: the grid value minimising the cost, from the two sums."""
+    return float(grid[int(np.argmax(sc * np.cos(grid) + ss * np.sin(grid)))])
+
+
+def motion_subwindows(w: Window, params: HeadingParams, t_end: float) -> int:
+    """Count sub-windows of the last ``window_s`` where the elbow leaves a sphere of
+    ``motion_diameter_m`` (§3.2.2).
+
+    The sphere test uses the largest distance from the sub-window's centroid, which is
+    within a few percent of the minimal enclosing sphere for arm-like paths.
+    """
+    sub = params.window_s / params.n_subwindows
+    edges = t_end - params.window_s + sub * np.arange(params.n_subwindows + 1)
+    idx = np.searchsorted(w.t, edges, side="right")
+    count = 0
+    for i in range(params.n_subwindows):
+        sl = slice(idx[i], idx[i + 1])
+        p = w.p[sl][w.valid[sl]]
+        if p.shape[0] < 2:
+            continue
+        r = np.max(np.linalg.norm(p - p.mean(axis=0), axis=1))
+        if 2.0 * r > params.motion_diameter_m:
+            count += 1
+    return count
+
+
+def _grid(center: float, half: float, step: float) -> Array:
+    n = int(round(half / step))
+    return center + np.radians(step) * np.arange(-n, n + 1)
+
+
+def update_paper(state: HeadingState, w: Window, params: HeadingParams, t: float) -> bool:
+    """One scheduled update of §3.2.2 (eqs. 6–8). Returns whether the window counted."""
+    a, b = w.a[w.valid], w.b[w.valid]
+    state.excitation = float(np.sqrt(np.mean(np.sum(b[:, :2] ** 2, axis=1)))) if len(b) else 0.0
+    if motion_subwindows(w, params, t) < params.min_motion_subwindows or len(a) == 0:
+        return False
+    sc, ss = sums(a, b)
+    if state.delta is None or not state.converged and state.n_counted < params.n_two_step:
+        coarse = np.radians(np.arange(0.0, 360.0, params.coarse_step_deg))
+        d = optdelta(coarse, sc, ss)  # eq. 6
+        d = optdelta(_grid(d, params.fine_halfwidth_deg, params.fine_step_deg), sc, ss)  # eq. 7
+    else:
+        prev = state.delta
+        d = optdelta(_grid(prev, params.fine_halfwidth_deg, params.fine_step_deg), sc, ss)  # eq. 8
+    d = wrap(d)
+    state.n_counted += 1
+    state.history.append(d)
+    state.delta, state.t_update = d, t
+    state.std = math.radians(params.fine_step_deg) / math.sqrt(12.0)
+    if not state.converged and len(state.history) > params.converge_count:
+        last = state.history[-(params.converge_count + 1) :]
+        tol = math.radians(params.converge_tol_deg)
+        if all(abs(wrap(last[i + 1] - last[i])) <= tol for i in range(params.converge_count)):
+            state.converged, state.t_converged = True, t
+    return True
+
+
+def fit_drift(
+    a: Array, b: Array, tau: Array, rate0: float, params: HeadingParams, n_iter: int = 4
+) -> tuple[float, float, float, float]:
+    """Weighted least squares of ``δ(τ) = δ0 + ρ τ`` over the window (improved method).
+
+    Maximises ``κ Σ (S_c,k cos e_k + S_s,k sin e_k) − (ρ − ρ_prior)² / 2σ_ρ²`` with
+    ``e_k = δ0 + ρ τ_k`` by Newton steps, where κ turns the cost into a log-likelihood
+    (residual variance per sample, corrected for the low-pass's sample correlation).
+    Returns ``(δ0, ρ, std δ0, std ρ)`` in rad and rad/s.
+    """
+    sck = a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]
+    ssk = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    n = len(sck)
+    # Constant-heading solution on data de-rotated by the prior drift: the starting point.
+    c0, s0 = np.cos(rate0 * tau), np.sin(rate0 * tau)
+    d0 = math.atan2(float(np.sum(ssk * c0 - sck * s0)), float(np.sum(sck * c0 + ssk * s0)))
+    e2 = float(np.sum(a[:, :2] ** 2) + np.sum(b[:, :2] ** 2))
+    span = float(tau[-1] - tau[0]) if n > 1 else 0.0
+    n_eff = max(1.0, span * params.effective_rate_hz)
+    sig_rho = math.radians(params.drift_prior_std_dps)
+    d, r = d0, rate0
+    h = np.zeros((2, 2))
+    for _ in range(n_iter):
+        e = d + r * tau
+        ce, se = np.cos(e), np.sin(e)
+        f = sck * ce + ssk * se  # per-sample alignment
+        g = ssk * ce - sck * se  # its derivative wrt e
+        resid = max(e2 - 2.0 * float(np.sum(f)), 1e-12)
+        kappa = n_eff / n / (resid / (2.0 * n))
+        sf, sft, sftt = float(np.sum(f)), float(np.sum(f * tau)), float(np.sum(f * tau * tau))
+        grad = np.array([kappa * float(np.sum(g)), kappa * float(np.sum(g * tau)) - (r - rate0) / sig_rho**2])
+        h = np.array([[kappa * sf, kappa * sft], [kappa * sft, kappa * sftt + 1.0 / sig_rho**2]])
+        if not np.all(np.isfinite(h)) or np.linalg.det(h) <= 0:
+            break
+        step = np.linalg.solve(h, grad)
+        d, r = d + float(step[0]), r + float(step[1])
+    try:
+        cov = np.linalg.inv(h)
+        sd, sr = math.sqrt(max(cov[0, 0], 0.0)), math.sqrt(max(cov[1, 1], 0.0))
+    except np.linalg.LinAlgError:
+        sd, sr = math.inf, sig_rho
+    return wrap(d), r, sd, sr
+
+
+def estimate_lag(w: Window, params: HeadingParams, dt: float) -> tuple[float, float]:
+    """Latency of the robot stream against the IMU, from heading-invariant features.
+
+    A time shift between the two accelerations looks like a heading rotation on circular
+    paths, so it is found from what a heading offset cannot change: the vertical component
+    and the horizontal magnitude. Returns ``(lag s, curvature weight)``; weight 0 if the
+    minimum is not clear.
+    """
+    v = w.valid
+    t, a, b = w.t[v], w.a[v], w.b[v]
+    if len(t) < 20:
+        return 0.0, 0.0
+    lags = np.arange(-params.max_lag_s, params.max_lag_s + 1e-9, dt / 2.0)
+    ah = np.hypot(a[:, 0], a[:, 1])
+    bh = np.hypot(b[:, 0], b[:, 1])
+    inner = (t >= t[0] + params.max_lag_s) & (t <= t[-1] - params.max_lag_s)
+    if np.count_nonzero(inner) < 10:
+        return 0.0, 0.0
+    ti = t[inner]
+    costs = np.empty(len(lags))
+    for i, lag in enumerate(lags):
+        # a at t − lag paired with b at t (robot late by lag)
+        dz = np.interp(ti - lag, t, a[:, 2]) - b[inner, 2]
+        dh = np.interp(ti - lag, t, ah) - bh[inner]
+        costs[i] = float(np.sum(dz * dz + dh * dh))
+    k = int(np.argmin(costs))
+    if k == 0 or k == len(lags) - 1:
+        return 0.0, 0.0
+    c0, c1, c2 = costs[k - 1], costs[k], costs[k + 1]
+    curv = c0 - 2 * c1 + c2
+    if curv <= 0:
+        return 0.0, 0.0
+    step = lags[1] - lags[0]
+    return float(lags[k] + 0.5 * step * (c0 - c2) / curv), float(curv / max(c1, 1e-12))
+
+
+def _fit_with_sensor_errors(
+    state: HeadingState, a: Array, b: Array, tau: Array, cl: Array, rate0: float, params: HeadingParams
+) -> tuple[float, float, float, Array]:
+    """Heading and drift jointly with the accelerometer bias and the lever-arm error.
+
+    A sensor-frame accelerometer bias β appears in frame I as ``Σ_j β_j c_j(t)`` (c_j the
+    sensor axes in I), and an error Δr of the assumed IMU→elbow vector as
+    ``Σ_j Δr_j c̈_j(t)``; both are linear in their unknowns once δ(t) is fixed, so the fit
+    alternates between the drift fit and a regularised linear least squares.
+    """
+    c = cl[:, :9].reshape(-1, 3, 3).transpose(0, 2, 1)  # (n, 3 components, 3 axes)
+    ldd = cl[:, 9:].reshape(-1, 3, 3).transpose(0, 2, 1)
+    jac = np.concatenate((-c, ldd), axis=2)  # (n, 3, 6): a_true ≈ a + jac · x
+    prior = np.concatenate(
+        (np.full(3, 1.0 / params.acc_bias_prior**2), np.full(3, 1.0 / params.lever_prior**2))
+    )
+    x = np.concatenate((state.acc_bias, state.lever_error))
+    n = len(a)
+    span = float(tau[-1] - tau[0]) if n > 1 else 0.0
+    n_eff = max(1.0, span * params.effective_rate_hz)
+    d0, rate, sd = 0.0, rate0, math.inf
+    for _ in range(3):
+        ac = a + np.einsum("nij,j->ni", jac, x)
+        d0, rate, sd, _ = fit_drift(ac, b, tau, rate0, params)
+        # residual in frame I: Rz(−δ_k) b_k − a_k = jac_k x + noise
+        y = _rotate_z(-(d0 + rate * tau), b) - a
+        r = y - np.einsum("nij,j->ni", jac, x)
+        var = max(float(np.mean(r * r)), 1e-8) * n / n_eff
+        lhs = np.einsum("nij,nik->jk", jac, jac) / var + np.diag(prior)
+        rhs = np.einsum("nij,ni->j", jac, y) / var + prior * 0.0
+        x = np.linalg.solve(lhs, rhs)
+    state.acc_bias, state.lever_error = x[:3].copy(), x[3:].copy()
+    return d0, rate, sd, a + np.einsum("nij,j->ni", jac, x)
+
+
+def _rotate_z(delta: Array, v: Array) -> Array:
+    c, s = np.cos(delta), np.sin(delta)
+    return np.stack((c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1], v[:, 2]), axis=1)
+
+
+def update_improved(
+    state: HeadingState, w: Window, params: HeadingParams, t: float, lag_s: float
+) -> bool:
+    """One update of the improved method. ``lag_s`` is the low-pass's group delay.
+
+    The window's data describe the heading ``lag_s`` earlier than their time stamps, so the
+    estimate is carried forward by the fitted drift. Returns whether the window counted.
+    """
+    a, b, tau = w.a[w.valid], w.b[w.valid], w.t[w.valid] - t
+    recent = tau > -params.window_s
+    excitation = (
+        float(np.sqrt(np.mean(np.sum(b[recent, :2] ** 2, axis=1)))) if np.any(recent) else 0.0
+    )
+    state.excitation = excitation
+    if (
+        len(a) < 2
+        or excitation < params.min_excitation
+        or motion_subwindows(w, params, t) < params.min_motion_subwindows
+    ):
+        return False
+    v = w.valid
+    cl = w.cl[v] if w.cl is not None else None
+    if params.estimate_lag:
+        dt = float(np.median(np.diff(w.t))) if len(w.t) > 1 else 0.04
+        lag, weight = estimate_lag(w, params, dt)
+        if weight > 0:
+            # the latency is constant: pool the windows' estimates by their sharpness
+            state.lag = (state.lag * state.lag_weight + lag * weight) / (state.lag_weight + weight)
+            state.lag_weight = min(state.lag_weight + weight, 50.0 * weight)
+        if state.lag != 0.0:
+            ts = w.t[v]
+            a = np.stack([np.interp(ts - state.lag, ts, a[:, j]) for j in range(3)], axis=1)
+            if cl is not None:
+                cl = np.stack([np.interp(ts - state.lag, ts, cl[:, j]) for j in range(18)], axis=1)
+    rate0 = state.rate if state.converged else 0.0
+    if params.estimate_sensor_errors and cl is not None and np.any(cl):
+        d0, rate, sd, a = _fit_with_sensor_errors(state, a, b, tau, cl, rate0, params)
+    else:
+        d0, rate, sd, _ = fit_drift(a, b, tau, rate0, params)
+    d = wrap(d0 + rate * lag_s)
+    prev = predict(state, t)
+    state.n_counted += 1
+    state.history.append(d)
+    state.delta, state.rate, state.t_update, state.std = d, rate, t, sd
+    if not state.converged:
+        k = 3
+        tol = math.radians(params.max_converge_std_deg)
+        recent = state.history[-k:]
+        if (
+            len(recent) == k
+            and prev is not None
+            and sd <= tol
+            and all(abs(wrap(recent[i + 1] - recent[i])) <= 2 * tol for i in range(k - 1))
+        ):
+            state.converged, state.t_converged = True, t
+    return True
+
+
+def predict(state: HeadingState, t: float) -> float | None:
+    """Heading offset at time ``t`` (rad), with the drift prediction; None if never estimated."""
+    if state.delta is None:
+        return None
+    return state.delta + state.rate * (t - state.t_update)
+
+
+def predict_std(state: HeadingState, t: float, params: HeadingParams) -> float:
+    """Uncertainty (rad) at ``t``: the update's, grown by an unmodelled drift of 0.1 °/s."""
+    dt = max(0.0, t - state.t_update)
+    return math.hypot(state.std, math.radians(0.1) * dt)
