@@ -128,7 +128,8 @@ class DeviceRun:
             d = {
                 "start": v.start, "end": v.end, "outside_fraction": v.outside_fraction,
                 "compensatory": v.compensatory, "coverage": v.coverage,
-                "peak_displacement_m": getattr(v, "peak_displacement_m", None),
+                "max_displacement_m": _finite(v.max_displacement_m),
+                "mean_displacement_m": _finite(v.mean_displacement_m),
             }
             (self.cycles if v.compensatory is not None else self.unjudged).append(d)
 
@@ -259,6 +260,10 @@ def write_outputs(run: DeviceRun, report: dict[str, Any], out: Path) -> None:
     (out / "estimates.csv").write_text(CSV_HEADER + "\n" + "".join(x + "\n" for x in run.est_lines))
     (out / "details.csv").write_text(DETAILS_HEADER + "\n" + "".join(x + "\n" for x in run.det_lines))
     (out / "report.json").write_text(json.dumps(report, indent=1, allow_nan=False, default=_json_default))
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
 
 
 def _json_default(o: Any) -> Any:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Literal
 
 DEFAULT_PREFIX = "rehab"
@@ -29,6 +30,7 @@ class KeyError_(ValueError):
     """A key that is not one of the contract's (counted as ``unknown_key``)."""
 
 
+@lru_cache(maxsize=4096)
 def parse(key: str, prefix: str = DEFAULT_PREFIX) -> ParsedKey:
     """Split ``<prefix>/<device>/<kind>[/<segment>]``; raise :class:`KeyError_` otherwise."""
     parts = key.split("/")

@@ -14,6 +14,8 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
+import msgspec
+
 Line = tuple[str | None, Any]
 
 
@@ -23,21 +25,30 @@ def _open_text(path: Path, mode: str) -> IO[str]:
     return open(path, mode, encoding="utf-8")  # noqa: SIM115
 
 
+class _Line(msgspec.Struct):
+    key: str
+    payload: msgspec.Raw  # left as JSON text for the typed decoder of its kind
+
+
+_LINE = msgspec.json.Decoder(_Line)
+
+
 def read(path: str | Path) -> Iterator[Line]:
-    """Yield ``(key, payload)`` per line; ``(None, raw_line)`` for a line that is not valid."""
-    with _open_text(Path(path), "r") as fh:
+    """Yield ``(key, payload)`` per line; ``(None, raw_line)`` for a line that is not valid.
+
+    The payload comes back as its raw JSON bytes for :func:`backend.wire.decode`.
+    """
+    p = Path(path)
+    with gzip.open(p, "rb") if p.suffix == ".gz" else open(p, "rb") as fh:  # noqa: SIM115
         for line in fh:
             if not line.strip():
                 continue
             try:
-                obj = json.loads(line)
-            except ValueError:
-                yield None, line[:200]
+                obj = _LINE.decode(line)
+            except (msgspec.DecodeError, msgspec.ValidationError):
+                yield None, line[:200].decode("utf-8", "replace")
                 continue
-            if not isinstance(obj, dict) or not isinstance(obj.get("key"), str) or "payload" not in obj:
-                yield None, line[:200]
-                continue
-            yield obj["key"], obj["payload"]
+            yield obj.key, obj.payload
 
 
 def write(path: str | Path, messages: Iterable[tuple[str, Any]]) -> int:

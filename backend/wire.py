@@ -19,6 +19,9 @@ from typing import Any, TypeAlias
 import numpy as np
 from numpy.typing import NDArray
 
+import msgspec
+import orjson
+
 from backend import keys
 
 FloatArray: TypeAlias = NDArray[np.float64]
@@ -101,107 +104,142 @@ class EstimateMessage:
 def _load(payload: bytes | str | dict[str, Any]) -> dict[str, Any]:
     if isinstance(payload, dict):
         return payload
-    if isinstance(payload, (bytes, bytearray, memoryview)):
-        if len(payload) > MAX_PAYLOAD_BYTES:
-            raise WireError("too_large", f"{len(payload)} bytes > {MAX_PAYLOAD_BYTES}")
-        try:
-            text = bytes(payload).decode("utf-8")
-        except UnicodeDecodeError as exc:
-            raise WireError("malformed_json", f"not UTF-8: {exc}") from None
-    else:
-        text = payload
-        if len(text) > MAX_PAYLOAD_BYTES:
-            raise WireError("too_large", f"{len(text)} characters > {MAX_PAYLOAD_BYTES}")
+    if isinstance(payload, msgspec.Raw):
+        payload = bytes(payload)
+    if len(payload) > MAX_PAYLOAD_BYTES:
+        raise WireError("too_large", f"{len(payload)} bytes > {MAX_PAYLOAD_BYTES}")
     try:
-        obj = json.loads(text, parse_constant=_reject_constant)
-    except WireError:
-        raise
-    except (ValueError, RecursionError) as exc:
+        obj = orjson.loads(payload)  # strict JSON: no NaN/Infinity literals, UTF-8 only
+    except orjson.JSONDecodeError as exc:
+        raw = payload.encode("utf-8", "replace") if isinstance(payload, str) else bytes(payload)
+        if b"NaN" in raw or b"Infinity" in raw or "infinity" in str(exc):
+            raise WireError("non_finite", "NaN or Infinity literal in payload") from None
         raise WireError("malformed_json", str(exc)[:200]) from None
     if not isinstance(obj, dict):
         raise WireError("not_object", f"payload is a JSON {type(obj).__name__}, not an object")
     return obj
 
 
-def _reject_constant(name: str) -> Any:
-    # json accepts NaN/Infinity literals, which are not JSON; refuse them at parse time.
-    raise WireError("non_finite", f"literal {name} in payload")
+Vec3 = tuple[float, float, float]
 
 
-def _array(obj: dict[str, Any], name: str, n: int | None, cols: int | None) -> FloatArray:
-    if name not in obj:
-        raise WireError("missing_field", f"field {name!r} is missing")
-    raw = obj[name]
-    if not isinstance(raw, list):
-        raise WireError("bad_type", f"{name!r} must be an array")
+class _Imu(msgspec.Struct):
+    t: list[float]
+    gyr: list[Vec3]
+    acc: list[Vec3]
+    seq: int | None = None
+
+
+class _Robot(msgspec.Struct):
+    t: list[float]
+    wrist: list[Vec3]
+    proximal: list[Vec3]
+    elbow: list[Vec3] | None = None
+    seq: int | None = None
+
+
+class _Camera(msgspec.Struct):
+    t: list[float]
+    elbow: list[Vec3]
+    wrist: list[Vec3]
+    shoulder: list[Vec3] | None = None
+    seq: int | None = None
+
+
+# Typed decoders validate structure and types in C; unknown fields (e.g. ``mag``) are ignored.
+_DECODERS: dict[str, msgspec.json.Decoder[Any]] = {
+    "imu": msgspec.json.Decoder(_Imu),
+    "robot": msgspec.json.Decoder(_Robot),
+    "camera": msgspec.json.Decoder(_Camera),
+}
+_CONVERT = {"imu": _Imu, "robot": _Robot, "camera": _Camera}
+
+
+def _structured(kind: str, payload: bytes | str | dict[str, Any]) -> Any:
     try:
-        arr = np.array(raw, dtype=np.float64)
-    except (ValueError, TypeError):
-        raise WireError("bad_shape", f"{name!r} is not a regular numeric array") from None
-    if cols is None:
-        if arr.ndim != 1:
-            raise WireError("bad_shape", f"{name!r} must be 1-D, got shape {arr.shape}")
-    elif arr.ndim != 2 or arr.shape[1] != cols:
-        raise WireError("bad_shape", f"{name!r} must be N×{cols}, got shape {arr.shape}")
-    if n is not None and arr.shape[0] != n:
-        raise WireError("length_mismatch", f"{name!r} has {arr.shape[0]} rows, t has {n}")
-    if not np.isfinite(arr).all():
-        raise WireError("non_finite", f"{name!r} contains NaN or inf")
-    return arr
+        if isinstance(payload, dict):
+            return msgspec.convert(payload, _CONVERT[kind])
+        if len(payload) > MAX_PAYLOAD_BYTES:
+            raise WireError("too_large", f"{len(payload)} bytes > {MAX_PAYLOAD_BYTES}")
+        return _DECODERS[kind].decode(payload)
+    except msgspec.ValidationError as exc:
+        raise WireError(_reason(str(exc)), str(exc)[:200]) from None
+    except msgspec.DecodeError as exc:
+        text = str(exc)
+        raw = payload.encode("utf-8", "replace") if isinstance(payload, str) else bytes(payload)
+        if b"NaN" in raw or b"Infinity" in raw or "inf" in text.lower():
+            raise WireError("non_finite", "NaN or Infinity in payload") from None
+        raise WireError("malformed_json", text[:200]) from None
 
 
-def _times(obj: dict[str, Any]) -> FloatArray:
-    t = _array(obj, "t", None, None)
-    n = t.shape[0]
+def _reason(msg: str) -> str:
+    if "out of range" in msg:
+        return "non_finite"
+    if "missing required field" in msg:
+        return "missing_field"
+    if msg.startswith("Expected `object`"):
+        return "not_object"
+    if "length" in msg:
+        return "bad_shape"
+    if "Expected `array`" in msg and "$." in msg and "[" in msg.split("$.", 1)[1]:
+        return "bad_shape"
+    return "bad_type"
+
+
+def _arr(rows: list[Any], name: str, n: int) -> FloatArray:
+    if len(rows) != n:
+        raise WireError("length_mismatch", f"{name!r} has {len(rows)} rows, t has {n}")
+    return np.array(rows, dtype=np.float64).reshape(n, 3)
+
+
+def _check(t: list[float], seq: int | None, from_json: bool, *arrays: FloatArray) -> FloatArray:
+    n = len(t)
     if n == 0:
         raise WireError("empty", "no samples")
     if n > MAX_SAMPLES:
         raise WireError("too_large", f"{n} samples > {MAX_SAMPLES}")
-    if n > 1 and not bool(np.all(np.diff(t) > 0)):
+    ta = np.array(t, dtype=np.float64)
+    # JSON text cannot carry NaN/inf past the typed decoder; Python objects can
+    if not from_json and not (np.isfinite(ta).all() and all(np.isfinite(a).all() for a in arrays)):
+        raise WireError("non_finite", "NaN or inf in payload")
+    if n > 1 and not all(a < b for a, b in zip(t, t[1:], strict=False)):
         raise WireError("non_increasing_t", "t is not strictly increasing within the message")
-    return t
-
-
-def _seq(obj: dict[str, Any]) -> int | None:
-    seq = obj.get("seq")
-    if seq is None:
-        return None
-    if isinstance(seq, bool) or not isinstance(seq, int) or not (0 <= seq < 2**63):
+    if seq is not None and not (0 <= seq < 2**63):
         raise WireError("bad_type", "seq must be a non-negative integer")
-    return seq
+    return ta
 
 
-def decode(key: str, payload: bytes | str | dict[str, Any], prefix: str = keys.DEFAULT_PREFIX) -> Message:
+def decode(
+    key: str, payload: bytes | str | dict[str, Any], prefix: str = keys.DEFAULT_PREFIX
+) -> Message:
     """Decode one device→service message. Raises :class:`WireError` on anything invalid."""
     try:
         pk = keys.parse(key, prefix)
     except keys.KeyError_ as exc:
         raise WireError("unknown_key", str(exc)) from None
-    obj = _load(payload)
     if pk.kind == "imu":
-        t = _times(obj)
-        n = t.shape[0]
-        return ImuMessage(
-            pk.device, pk.segment or "upperarm", t,
-            _array(obj, "gyr", n, 3), _array(obj, "acc", n, 3), _seq(obj),
-        )
+        p = _structured("imu", payload)
+        n = len(p.t)
+        gyr, acc = _arr(p.gyr, "gyr", n), _arr(p.acc, "acc", n)
+        t = _check(p.t, p.seq, not isinstance(payload, dict), gyr, acc)
+        return ImuMessage(pk.device, pk.segment or "upperarm", t, gyr, acc, p.seq)
     if pk.kind == "robot":
-        t = _times(obj)
-        n = t.shape[0]
-        elbow = _array(obj, "elbow", n, 3) if obj.get("elbow") is not None else None
-        return RobotMessage(
-            pk.device, t, _array(obj, "wrist", n, 3), _array(obj, "proximal", n, 3), elbow,
-            _seq(obj),
-        )
+        r = _structured("robot", payload)
+        n = len(r.t)
+        wrist, prox = _arr(r.wrist, "wrist", n), _arr(r.proximal, "proximal", n)
+        elbow = _arr(r.elbow, "elbow", n) if r.elbow is not None else None
+        extra = () if elbow is None else (elbow,)
+        t = _check(r.t, r.seq, not isinstance(payload, dict), wrist, prox, *extra)
+        return RobotMessage(pk.device, t, wrist, prox, elbow, r.seq)
     if pk.kind == "camera":
-        t = _times(obj)
-        n = t.shape[0]
-        sh = _array(obj, "shoulder", n, 3) if obj.get("shoulder") is not None else None
-        return CameraMessage(
-            pk.device, t, _array(obj, "elbow", n, 3), _array(obj, "wrist", n, 3), sh, _seq(obj)
-        )
+        c = _structured("camera", payload)
+        n = len(c.t)
+        el, wr = _arr(c.elbow, "elbow", n), _arr(c.wrist, "wrist", n)
+        sh = _arr(c.shoulder, "shoulder", n) if c.shoulder is not None else None
+        t = _check(c.t, c.seq, not isinstance(payload, dict), el, wr, *(() if sh is None else (sh,)))
+        return CameraMessage(pk.device, t, el, wr, sh, c.seq)
     if pk.kind == "event":
-        return _event(pk.device, obj)
+        return _event(pk.device, _load(payload))
     raise WireError("unknown_key", f"{key!r} is a service output, not an input")
 
 
@@ -222,7 +260,14 @@ def _event(device: str, obj: dict[str, Any]) -> EventMessage:
     if etype == "shoulder_reference":
         if "point" not in obj:
             raise WireError("missing_field", "shoulder_reference needs 'point'")
-        point = _array({"p": [obj["point"]]}, "p", 1, 3)[0]
+        pt = obj["point"]
+        if not (isinstance(pt, list) and len(pt) == 3):
+            raise WireError("bad_shape", "point must be [x, y, z]")
+        if not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in pt):
+            raise WireError("bad_type", "point must hold numbers")
+        point = np.array(pt, dtype=np.float64)
+        if not np.isfinite(point).all():
+            raise WireError("non_finite", "point contains NaN or inf")
     return EventMessage(device, float(t), etype, point)
 
 

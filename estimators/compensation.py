@@ -131,7 +131,7 @@ class Indicator:
     Tolerated duration, in order of precedence: the ``tolerated_s`` argument of the call (one
     value for the whole chunk: chunk-invariant only if the caller's value is), else
     ``params.warning_after_s``, else ``max_outside_fraction`` × the duration of the last cycle
-    reported with :meth:`cycle_completed` (effective from samples with ``t >= end``), else
+    reported with :meth:`cycle_completed` (effective from the boundary's ``detected_at``), else
     ``params.default_warning_after_s``.
 
     State-change events (contract §7 ``{"type": "state"}``): ``UNKNOWN`` is not a state and is
@@ -159,18 +159,20 @@ class Indicator:
             return self.params.warning_after_s
         return self._tol
 
-    def cycle_completed(self, start: float, end: float) -> None:
+    def cycle_completed(self, start: float, end: float, effective_t: float | None = None) -> None:
         """Report a completed cycle ``[start, end)`` (s); with ``warning_after_s=None`` the
         tolerated duration becomes ``max_outside_fraction * (end - start)`` for samples with
-        ``t >= end``. Call it before :meth:`update` of the chunk that contains ``end`` (the
-        segmenter reports a boundary in the call whose data reaches it, so: segment first,
-        then update the indicator). If samples past ``end`` were already processed the change
-        applies from the next sample."""
+        ``t >= max(end, effective_t)``. For chunk invariance pass the boundary's
+        ``detected_at`` as ``effective_t`` and call this before :meth:`update` of the chunk in
+        which the segmenter reported the boundary (segment first, then update the indicator;
+        ``update(..., boundaries=...)`` does both). If samples past that time were already
+        processed, the change applies from the next sample."""
         if self.params.warning_after_s is not None or not end > start:
             return
+        when = end if effective_t is None else max(end, effective_t)
         value = self.params.max_outside_fraction * (end - start)
-        i = bisect.bisect_right(self._sched_t, end)
-        self._sched_t.insert(i, end)
+        i = bisect.bisect_right(self._sched_t, when)
+        self._sched_t.insert(i, when)
         self._sched_v.insert(i, value)
 
     def update(
@@ -186,13 +188,13 @@ class Indicator:
         no estimate. ``tolerated_s``: override of the tolerated duration for this chunk, s.
         ``boundaries``: convenience; every item with a ``cycle_start`` attribute that is not
         ``None`` (the :class:`estimators.cycles.Boundary` objects) is passed to
-        :meth:`cycle_completed` first. Returns ``codes`` (N,) int8 and the state-change events
-        ``[(t, "ok" | "outside" | "warning"), ...]`` in time order.
+        :meth:`cycle_completed` first, with its ``detected_at``. Returns ``codes`` (N,) int8
+        and the state-change events ``[(t, "ok" | "outside" | "warning"), ...]`` in time order.
         """
         for b in boundaries:
             cs = getattr(b, "cycle_start", None)
             if cs is not None:
-                self.cycle_completed(float(cs), float(b))
+                self.cycle_completed(float(cs), float(b), getattr(b, "detected_at", None))
         tt = np.asarray(t, dtype=np.float64)
         dd = np.asarray(displacement, dtype=np.float64)
         if tt.shape != dd.shape or tt.ndim != 1:

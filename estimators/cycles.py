@@ -5,8 +5,9 @@ The paper judges every iteration of a repetitive task "when it is completed" (Pa
 not send them. Three sources of boundaries:
 
 - ``"path"``: closed paths (circles, rectangles...). The phase of the wrist around the causal
-  running centre of its horizontal path; a boundary each time the unwrapped phase completes
-  another full turn (see :class:`CycleParams` and ``_PathDetector``).
+  running centre of its horizontal path (mean over the last ``centre_window_s`` of the samples
+  where the wrist moves, so rests do not pull it); a boundary each time the unwrapped phase
+  completes another full turn in the turning direction (see ``_PathDetector``).
 - ``"reach"``: back-and-forth reaching. The wrist projected on the principal horizontal axis of
   the recent motion; a boundary each time the wrist returns to the near end (Schmitt trigger on
   the projection, thresholds from the previous cycle's range).
@@ -36,7 +37,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 FloatArray: TypeAlias = NDArray[np.float64]
-IntArray: TypeAlias = NDArray[np.intp]
 Mode: TypeAlias = Literal["auto", "path", "events", "reach"]
 Source: TypeAlias = Literal["path", "reach", "event"]
 
@@ -44,38 +44,52 @@ TWO_PI = 2.0 * math.pi
 
 
 class Boundary(float):
-    """A cycle boundary: a ``float`` time (s) with two read-only extras.
+    """A cycle boundary: a ``float`` time (s) with read-only extras.
 
     - ``cycle_start``: start (s) of the completed cycle ``[cycle_start, self)``, or ``None``
       when this boundary only opens a cycle (first boundary, or after a restart: the cycle
       before it was too short, too long, interrupted or from another source).
     - ``source``: ``"path"``, ``"reach"`` or ``"event"``.
+    - ``detected_at``: s, ``>= self``; no sample at or after this time had been fed when the
+      boundary was reported (the crossing sample for path/reach; the event time, or just after
+      the data already seen for a late event). Consumers that act on a boundary per sample
+      (:meth:`estimators.compensation.Indicator.cycle_completed`) start at samples with
+      ``t >= detected_at`` to stay chunk-invariant.
 
     Compares, hashes and serialises (``json``) as the plain float.
     """
 
-    __slots__ = ("cycle_start", "source")
+    __slots__ = ("cycle_start", "detected_at", "source")
     cycle_start: float | None
     source: Source
+    detected_at: float
 
     def __new__(
-        cls, t: float, cycle_start: float | None = None, source: Source = "path"
+        cls,
+        t: float,
+        cycle_start: float | None = None,
+        source: Source = "path",
+        detected_at: float | None = None,
     ) -> Boundary:
         obj = super().__new__(cls, t)
         obj.cycle_start = cycle_start
         obj.source = source
+        obj.detected_at = float(t) if detected_at is None else detected_at
         return obj
 
     @property
     def closes_cycle(self) -> bool:
         return self.cycle_start is not None
 
-    def __reduce__(self) -> tuple[type[Boundary], tuple[float, float | None, Source]]:
-        return (Boundary, (float(self), self.cycle_start, self.source))
+    def __reduce__(
+        self,
+    ) -> tuple[type[Boundary], tuple[float, float | None, Source, float]]:
+        return (Boundary, (float(self), self.cycle_start, self.source, self.detected_at))
 
     def __repr__(self) -> str:
         return (
-            f"Boundary({float(self)!r}, cycle_start={self.cycle_start!r}, source={self.source!r})"
+            f"Boundary({float(self)!r}, cycle_start={self.cycle_start!r}, "
+            f"source={self.source!r}, detected_at={self.detected_at!r})"
         )
 
 
@@ -309,18 +323,19 @@ class _Detector:
         self.ref_t = 0.0  # time the current sequence (re)started
         self.origin: tuple[float, float] | None = None  # first sample, for numerical range
 
-    def accept(self, b: float, out: list[Boundary]) -> bool:
-        """Emit a boundary at ``b`` if the cycle it closes is within bounds; False: restart."""
+    def accept(self, b: float, t_now: float, out: list[Boundary]) -> bool:
+        """Emit a boundary at ``b``, seen at the sample ``t_now``, if the cycle it closes is
+        within bounds; False: restart."""
         p = self.p
         if self.last_b is None:
             if b - self.ref_t < p.min_cycle_s:
                 return False
-            out.append(Boundary(b, None, self.source))
+            out.append(Boundary(b, None, self.source, t_now))
         else:
             d = b - self.last_b
             if d < p.min_cycle_s or d > p.max_cycle_s:
                 return False
-            out.append(Boundary(b, self.last_b, self.source))
+            out.append(Boundary(b, self.last_b, self.source, t_now))
         self.last_b = b
         return True
 
@@ -400,7 +415,7 @@ class _PathDetector(_Detector):
     def _crossing(self, t0: float, p0: float, t1: float, p1: float, out: list[Boundary]) -> None:
         level = self._level()
         b = t0 + (level - p0) / (p1 - p0) * (t1 - t0)
-        if self.accept(b, out):
+        if self.accept(b, t1, out):
             self._turns += 1
         else:
             self._restart(t1, p1)
@@ -552,10 +567,10 @@ class _ReachDetector(_Detector):
     def _fold(self, lo: float, hi: float) -> None:
         self._run = (min(self._run[0], lo), max(self._run[1], hi))
 
-    def _fire(self, b: float, p1: float, out: list[Boundary]) -> bool:
+    def _fire(self, b: float, t1: float, p1: float, out: list[Boundary]) -> bool:
         """A return to the near end at ``b``; False: the detector must restart."""
         run = self._run
-        if not self.accept(b, out):
+        if not self.accept(b, t1, out):
             return False
         self._armed = False
         self._range = run if run[1] - run[0] >= self.p.min_range_m else None
@@ -625,7 +640,7 @@ class _ReachDetector(_Detector):
                 if prev is not None and prev[1] > level:
                     t0, p0 = prev
                     b = t0 + (p0 - level) / (p0 - pv) * (t - t0)
-                return self._fire(b, pv, out)
+                return self._fire(b, t, pv, out)
         self._fold(pv, pv)
         return True
 
@@ -745,7 +760,7 @@ class _ReachDetector(_Detector):
                     if p0 > lv:
                         t0 = float(prev_t[j])
                         b = t0 + (p0 - lv) / (p0 - p1) * (t1 - t0)
-                    if not self._fire(b, p1, out):
+                    if not self._fire(b, t1, p1, out):
                         return j
                     i = j + 1
                     continue
@@ -794,11 +809,13 @@ class CycleSegmenter:
         self._last_event_b: float | None = None
 
     @property
-    def active_source(self) -> Source | None:
-        """What produces boundaries now: ``"path"``, ``"reach"``, ``"event"`` or ``None``."""
-        if self._detector is not None and self._switch_t is None:
-            return self._detector.source
-        return "event" if self._use_events else None
+    def active_source(self) -> Source:
+        """What produces boundaries for the next samples: ``"path"``, ``"reach"`` or
+        ``"event"``."""
+        det = self._detector
+        if det is not None and (self._switch_t is None or self._data_t < self._switch_t):
+            return det.source
+        return "event"
 
     def add_event(self, t: float) -> None:
         """Queue a contract ``cycle_start`` event at time ``t`` (s)."""
@@ -828,17 +845,19 @@ class CycleSegmenter:
                     self._last_b = b
             if k < n:
                 self._detector = None
+        seen = self._data_t  # data time before this chunk
         if n:
             self._data_t = max(self._data_t, float(tt[-1]))
         if self._events and self._events[0] <= self._data_t:
             k = bisect.bisect_right(self._events, self._data_t)
             due = self._events[:k]
             del self._events[:k]
+            after = math.nextafter(seen, math.inf)
             for te in due:
-                self._emit_event(te, out)
+                self._emit_event(te, max(te, after), out)
         return out
 
-    def _emit_event(self, te: float, out: list[float]) -> None:
+    def _emit_event(self, te: float, detected_at: float, out: list[float]) -> None:
         p = self.params
         if te <= self._last_b:
             return
@@ -846,7 +865,7 @@ class CycleSegmenter:
         if prev is not None and te - prev < p.min_cycle_s:
             return
         start = prev if prev is not None and te - prev <= p.max_cycle_s else None
-        b = Boundary(te, start, "event")
+        b = Boundary(te, start, "event", detected_at)
         out.append(b)
         self._last_b = te
         self._last_event_b = te

@@ -56,6 +56,9 @@ class HeadingParams:
     estimate_sensor_errors: bool = True  # fit accelerometer bias and lever-arm error (improved)
     acc_bias_prior: float = 0.3  # m/s², prior std of each accelerometer bias component
     lever_prior: float = 0.05  # m, prior std of each component of the IMU→elbow lever error
+    sensor_fit_iterations: int = 2
+    converged_interval_s: float = 5.0  # improved: update cadence once converged (drift predicted)
+    lag_every: int = 5  # improved: re-estimate the latency every this many updates
     max_lag_s: float = 0.15  # search range ± for that latency
 
     @classmethod
@@ -261,33 +264,33 @@ def _fit_with_sensor_errors(
     """Heading and drift jointly with the accelerometer bias and the lever-arm error.
 
     A sensor-frame accelerometer bias β appears in frame I as ``Σ_j β_j c_j(t)`` (c_j the
-    sensor axes in I), and an error Δr of the assumed IMU→elbow vector as
-    ``Σ_j Δr_j c̈_j(t)``; both are linear in their unknowns once δ(t) is fixed, so the fit
-    alternates between the drift fit and a regularised linear least squares.
+    sensor axes in I, high-passed like the 6D filter's levelling), and an error Δr of the
+    assumed IMU→elbow vector as ``Σ_j Δr_j c̈_j(t)``; both are linear in their unknowns once
+    δ(t) is fixed, so the fit alternates the drift fit with a regularised least squares.
     """
-    c = cl[:, :9].reshape(-1, 3, 3).transpose(0, 2, 1)  # (n, 3 components, 3 axes)
-    ldd = cl[:, 9:].reshape(-1, 3, 3).transpose(0, 2, 1)
-    jac = np.concatenate((-c, ldd), axis=2)  # (n, 3, 6): a_true ≈ a + jac · x
+    n = len(a)
+    # jac (3n, 6): a_true ≈ a + jac · x, rows ordered sample-major (x, y, z per sample)
+    c = cl[:, :9].reshape(n, 3, 3).transpose(0, 2, 1)
+    ldd = cl[:, 9:].reshape(n, 3, 3).transpose(0, 2, 1)
+    jac = np.concatenate((-c, ldd), axis=2).reshape(3 * n, 6)
+    jtj = jac.T @ jac
     prior = np.concatenate(
         (np.full(3, 1.0 / params.acc_bias_prior**2), np.full(3, 1.0 / params.lever_prior**2))
     )
     x = np.concatenate((state.acc_bias, state.lever_error))
-    n = len(a)
     span = float(tau[-1] - tau[0]) if n > 1 else 0.0
     n_eff = max(1.0, span * params.effective_rate_hz)
     d0, rate, sd = 0.0, rate0, math.inf
-    for _ in range(3):
-        ac = a + np.einsum("nij,j->ni", jac, x)
-        d0, rate, sd, _ = fit_drift(ac, b, tau, rate0, params)
+    for _ in range(params.sensor_fit_iterations):
+        ac = a + (jac @ x).reshape(n, 3)
+        d0, rate, sd, _ = fit_drift(ac, b, tau, rate0, params, n_iter=3)
         # residual in frame I: Rz(−δ_k) b_k − a_k = jac_k x + noise
-        y = _rotate_z(-(d0 + rate * tau), b) - a
-        r = y - np.einsum("nij,j->ni", jac, x)
-        var = max(float(np.mean(r * r)), 1e-8) * n / n_eff
-        lhs = np.einsum("nij,nik->jk", jac, jac) / var + np.diag(prior)
-        rhs = np.einsum("nij,ni->j", jac, y) / var + prior * 0.0
-        x = np.linalg.solve(lhs, rhs)
+        y = (_rotate_z(-(d0 + rate * tau), b) - a).reshape(-1)
+        r = y - jac @ x
+        var = max(float(r @ r) / (3 * n), 1e-8) * n / n_eff
+        x = np.linalg.solve(jtj / var + np.diag(prior), (jac.T @ y) / var)
     state.acc_bias, state.lever_error = x[:3].copy(), x[3:].copy()
-    return d0, rate, sd, a + np.einsum("nij,j->ni", jac, x)
+    return d0, rate, sd, a + (jac @ x).reshape(n, 3)
 
 
 def _rotate_z(delta: Array, v: Array) -> Array:
@@ -317,9 +320,14 @@ def update_improved(
         return False
     v = w.valid
     cl = w.cl[v] if w.cl is not None else None
-    if params.estimate_lag:
+    if params.estimate_lag and (state.n_counted % params.lag_every == 0 or not state.converged):
         dt = float(np.median(np.diff(w.t))) if len(w.t) > 1 else 0.04
-        lag, weight = estimate_lag(w, params, dt)
+        k = int(np.searchsorted(w.t, t - params.window_s, side="right"))
+        tail = Window(w.t[k:], w.a[k:], w.b[k:], w.p[k:], w.valid[k:])
+        lag, weight = estimate_lag(tail, params, dt)
+    else:
+        lag, weight = 0.0, 0.0
+    if params.estimate_lag:
         if weight > 0:
             # the latency is constant: pool the windows' estimates by their sharpness
             state.lag = (state.lag * state.lag_weight + lag * weight) / (state.lag_weight + weight)

@@ -48,6 +48,10 @@ class PipelineParams:
     antialias: bool | None = None  # centred anti-alias kernel before the grid; None: improved only
     gyro_lowpass_hz: float = 2.5  # paper: ω̇ from a 2.5 Hz low-passed gyro (paper method only)
     mounting_quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)  # A in sensor frame
+    vqf_tau_acc_s: float = 3.0  # 6D filter's accelerometer time constant (VQF's tauAcc)
+    # elbow angle: "paired" (both at the robot's instant), "fresh" (IMU now, robot forearm as
+    # is) or "extrapolate" (forearm axis carried forward by the estimated latency)
+    elbow_angle_timing: Literal["paired", "fresh", "extrapolate"] = "fresh"
     # streams
     robot_time_offset_s: float = 0.0  # robot stamps are this late (latency)
     imu_max_bridge_s: float = 0.1  # IMU gaps up to this are interpolated; longer ones reset
@@ -85,7 +89,7 @@ class PipelineParams:
         """Build from a contract parameters object; unknown keys are an error."""
         if not isinstance(obj, dict):
             raise ParamsError("parameters must be a JSON object")
-        names = {f.name for f in dataclasses.fields(cls)} - {"extra", "heading"}
+        names = {f.name for f in dataclasses.fields(cls)} - {"heading"}
         unknown = sorted(set(obj) - names - {"heading"})
         if unknown:
             raise ParamsError(f"unknown parameter(s): {', '.join(unknown)}")
@@ -106,8 +110,10 @@ class PipelineParams:
                 if not isinstance(v, list) or len(v) != n or not all(_num(x) for x in v):
                     raise ParamsError(f"{k} must be a list of {n} numbers")
                 kw[k] = tuple(float(x) for x in v)
-            elif k in ("displacement_norm", "method", "arm_length", "cycle_mode"):
+            elif k in ("displacement_norm", "method", "arm_length", "cycle_mode", "elbow_angle_timing"):
                 kw[k] = v
+            elif k == "extra":
+                kw[k] = dict(v)
             elif k == "antialias":
                 if not isinstance(v, bool):
                     raise ParamsError("antialias must be true or false")

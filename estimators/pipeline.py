@@ -213,7 +213,7 @@ class _ImuStage:
 
     def _reset(self) -> None:
         assert self.ts is not None
-        self.vqf = VQF(self.ts)
+        self.vqf = VQF(self.ts, tauAcc=self.p.vqf_tau_acc_s)
         self.gyro_zi = None
         self.gyro_prev = None
 
@@ -412,6 +412,10 @@ class _GridStage:
         # gravity leakage of the 6D filter's inclination error (robot side has none).
         self.hp = LowPass(2, p.highpass, p.fusion_rate_hz, "highpass") if p.highpass > 0 else None
         self.hp_zi: Array | None = None
+        # VQF levels itself with a first-order time constant tauAcc on the accelerometer
+        tilt_hz = 1.0 / (2.0 * math.pi * p.vqf_tau_acc_s)
+        self.tilt = LowPass(1, tilt_hz, p.fusion_rate_hz, "highpass")
+        self.tilt_zi: Array | None = None
         self.lag = dc_group_delay_s(p.lowpass_order, p.lowpass_cutoff_hz, p.fusion_rate_hz)
         self.settle = int(math.ceil(3.0 * self.lag * p.fusion_rate_hz))
         self.k_next: int | None = None  # next grid index (time k·dt)
@@ -467,6 +471,7 @@ class _GridStage:
                 # restart after a gap: steady state at the first value, wait for settling
                 self.zi = self.lp.initial_state(xs[0])
                 self.hp_zi = None
+                self.tilt_zi = None
                 self.hist_y = np.empty((0, NCH))
                 self.hist_x = np.empty((0, NCH))
                 self.since = 0
@@ -485,6 +490,12 @@ class _GridStage:
                 ab = np.concatenate(
                     (yy[1:-1, 0:3] + d2[:, 3:6], d2[:, 15:18], yy[1:-1, 6:15], d2[:, 6:15]), axis=1
                 )
+                if self.tilt is not None:
+                    # the 6D filter levels itself on the slow part of a rotated bias: only
+                    # the faster part reaches the acceleration (VQF's tauAcc)
+                    if self.tilt_zi is None:
+                        self.tilt_zi = self.tilt.initial_state(ab[0, 6:15])
+                    ab[:, 6:15], self.tilt_zi = self.tilt(ab[:, 6:15], self.tilt_zi)
                 if self.hp is not None:
                     if self.hp_zi is None:
                         self.hp_zi = self.hp.initial_state(np.zeros(ab.shape[1]))
@@ -542,7 +553,7 @@ class Pipeline:
         self._robot = _RobotStage(p)
         self._grid = _GridStage(p)
         self._imu_pending: list[tuple[Array, Array, Array]] = []
-        self._robot_pending: list[tuple[Array, Array, Array]] = []  # (t, wrist, p_e)
+        self._robot_pending: list[tuple[Array, Array, Array, Array | None]] = []
         self._imu_frontier = -math.inf  # last IMU stamp fed
         self._robot_frontier = -math.inf
         # rows: robot samples in order; decided[i] = (with_imu, nominal_spec)
@@ -556,7 +567,7 @@ class Pipeline:
         # heading
         self._hstate = hd.HeadingState()
         self._hseg = 0
-        self._k_update: int | None = None
+        self._t_update: float | None = None
         # heading after each update: t, delta, rate, t_update, std, converged, imu segment,
         # robot latency
         self._snaps = np.empty((0, 8))
@@ -589,7 +600,8 @@ class Pipeline:
         self._indicator = Indicator(self._cp)
         self._segmenter = CycleSegmenter(CycleParams(mode=p.cycle_mode))
         self._judge = CycleJudge(self._cp)
-        self._last_cycle_s: float | None = None
+        self._xc_prev_t = -math.inf
+        self._xc_prev = np.zeros(3)
 
     # ------------------------------------------------------------------ feeding
 
@@ -622,18 +634,13 @@ class Pipeline:
     ) -> bool:
         if not self._robot_stream.admit(float(t[0]), seq, self.quality):
             return False
-        self._robot_stream.last_t = float(t[-1])
-        p_e, x_c = kin.elbow_from_cuffs(wrist, proximal, self.params.cuff_to_elbow_m)
-        if elbow is not None:
-            p_e = elbow
-        if not np.all(np.isfinite(x_c)):
+        # pure Python: per-message numpy calls would cost more than the whole check
+        if any(x * x + y * y + z * z <= 1e-12 for x, y, z in (wrist - proximal).tolist()):
             self.quality.reject("coincident_cuffs")
             return False
-        self._robot_pending.append((t, wrist, p_e))
+        self._robot_stream.last_t = float(t[-1])
+        self._robot_pending.append((t, wrist, proximal, elbow))
         self._row_t.extend(t.tolist())
-        self._row_wrist.append(wrist)
-        self._row_pe.append(p_e)
-        self._row_xc.append(x_c)
         self.quality.robot_samples += len(t)
         self._robot_frontier = float(t[-1])
         self._decide()
@@ -687,11 +694,18 @@ class Pipeline:
         off = self.params.robot_time_offset_s
         if self._robot_pending:
             pend_r, self._robot_pending = self._robot_pending, []
-            self._robot.append(
-                np.concatenate([c[0] for c in pend_r]) - off,
-                np.concatenate([c[2] for c in pend_r]),
-                self.quality,
+            wrist = np.concatenate([c[1] for c in pend_r])
+            p_e, x_c = kin.elbow_from_cuffs(
+                wrist, np.concatenate([c[2] for c in pend_r]), self.params.cuff_to_elbow_m
             )
+            if any(c[3] is not None for c in pend_r):  # a robot that knows the elbow itself
+                given = [c[3] if c[3] is not None else np.full((len(c[0]), 3), np.nan) for c in pend_r]
+                e = np.concatenate(given)
+                p_e = np.where(np.isfinite(e), e, p_e)
+            self._row_wrist.append(wrist)
+            self._row_pe.append(p_e)
+            self._row_xc.append(x_c)
+            self._robot.append(np.concatenate([c[0] for c in pend_r]) - off, p_e, self.quality)
         # fusion grid as far as both streams reach (stamps fed so far)
         until = min(self._imu_frontier - self._grid.half, self._robot_frontier - off)
         if self._imu.ts is not None:
@@ -717,16 +731,20 @@ class Pipeline:
 
     def _run_heading(self) -> None:
         hp = self.hp
-        step = hp.update_interval_s
         front = self._grid.frontier
         if not math.isfinite(front):
             return
-        if self._k_update is None:
-            self._k_update = int(math.floor(self._grid.t[0] / step)) + 1
+        if self._t_update is None:
+            step = hp.update_interval_s
+            self._t_update = (math.floor(self._grid.t[0] / step) + 1) * step
         snaps: list[tuple[float, ...]] = []
-        while self._k_update * step <= front:
-            t_up = self._k_update * step
-            self._k_update += 1
+        while self._t_update <= front:
+            t_up = self._t_update
+            # updates on a fixed lattice of the sample clock; sparser once converged
+            step = hp.update_interval_s
+            if hp.method == "improved" and self._hstate.converged:
+                step = hp.converged_interval_s
+            self._t_update = (math.floor(t_up / step + 1e-9) + 1) * step
             seg = int(self._grid.seg[min(int(np.searchsorted(self._grid.t, t_up, side="right")) - 1, len(self._grid.seg) - 1)])
             if seg != self._hseg:
                 self._hstate = hd.HeadingState()
@@ -789,7 +807,7 @@ class Pipeline:
         q_pr[good] = quat.mul(rz, q_pair[good])
         x_a = quat.rotate(q_pr, np.broadcast_to(EX, (n, 3)))
         x_now = quat.rotate(q_ra, np.broadcast_to(EX, (n, 3)))
-        angle = kin.elbow_angle_deg(x_a, x_c)
+        angle = self._elbow_angle(t, x_now, x_a, x_c, latency)
         la = self._arm_lengths(t, p_e, spec)
         shoulder = kin.shoulder_position(p_e, x_a, la)
         nominal = self._nominal(t, shoulder, good, spec)
@@ -800,14 +818,10 @@ class Pipeline:
             _, conv_angle[has_nom] = kin.conventional(p_e[has_nom], x_c[has_nom], nominal[has_nom])
         self.quality.rows_without_imu += int(np.count_nonzero(~with_imu))
         # compensation rule (§3.4)
-        tolerated = p.warning_after_s
-        if tolerated is None and self._last_cycle_s is not None:
-            tolerated = p.max_outside_fraction * self._last_cycle_s
-        codes, changes = self._indicator.update(t, disp, tolerated)
+        # segment first: a completed cycle sets the tolerated duration from its end on
         boundaries = self._segmenter.update(t, wrist)
+        codes, changes = self._indicator.update(t, disp, None, boundaries)
         verdicts = self._judge.update(t, codes, boundaries, disp)
-        for v in verdicts:
-            self._last_cycle_s = v.end - v.start
         fb: list[dict[str, Any]] = [{"t": tc, "type": "state", "state": st} for tc, st in changes]
         fb.extend(
             {
@@ -844,6 +858,25 @@ class Pipeline:
         out.feedback = fb
         out.cycles = list(verdicts)
         return out
+
+    def _elbow_angle(self, t: Array, x_now: Array, x_pair: Array, x_c: Array, latency: Array) -> Array:
+        """Elbow angle (eq. 11) at the row's time.
+
+        The robot's forearm axis is ``latency`` old while the IMU's upper-arm axis is fresh;
+        the forearm axis is carried forward along its last robot step (``extrapolate``)
+        so both segments describe the same instant.
+        """
+        mode = self.params.elbow_angle_timing
+        if mode == "paired":
+            return kin.elbow_angle_deg(x_pair, x_c)
+        prev_t = np.concatenate(([self._xc_prev_t], t[:-1]))
+        prev = np.concatenate((self._xc_prev[None], x_c[:-1]))
+        self._xc_prev_t, self._xc_prev = float(t[-1]), x_c[-1].copy()
+        dt = t - prev_t
+        if mode == "extrapolate":
+            step = np.where((dt > 0) & (dt < 0.2), latency / np.where(dt > 0, dt, 1.0), 0.0)
+            x_c = kin.unit(x_c + step[:, None] * (x_c - prev))
+        return kin.elbow_angle_deg(x_now, x_c)
 
     def _take_rows(self, n: int) -> tuple[Array, Array, Array]:
         def take(buf: list[Array]) -> Array:

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from estimators.compensation import CompensationParams
+from estimators.compensation import CompensationParams, FloatArray
 from estimators.cycles import RowBuffer
 
 
@@ -140,7 +140,7 @@ class CycleJudge:
         bt = self._buf.view()[:, 0]
         self._buf.drop(int(np.searchsorted(bt, keep, side="right")) - 1)
 
-    def _judge(self, view: np.ndarray, start: float, end: float, source: str) -> CycleVerdict:
+    def _judge(self, view: FloatArray, start: float, end: float, source: str) -> CycleVerdict:
         p = self.params
         tb = view[:, 0]
         j0 = max(int(np.searchsorted(tb, start, side="right")) - 1, 0)

@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"simulate: {exc}", file=sys.stderr)
         return 2
     start = time.perf_counter()
-    sim = simulate(cfg)
+    sim = simulate(cfg, progress=True)
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     rec = out / RECORDING_NAME

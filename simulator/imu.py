@@ -11,6 +11,7 @@ Sensor frame: ``R_imu = R_A · R_wobble(t) · R_mount`` (body-fixed rotations). 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TypeAlias
 
@@ -27,6 +28,7 @@ F64: TypeAlias = NDArray[np.float64]
 GRAVITY = 9.81  # m/s², along −z of R
 STEP_S = 1e-3  # finite-difference step
 MIN_GRID_HZ = 200.0  # the wobble ODE runs at least this fast
+CHUNK = 50_000  # grid points per evaluation batch (~100 MB of temporaries)
 WOBBLE_AXIAL = 0.5  # tissue moves less along the bone than across it
 
 
@@ -77,26 +79,70 @@ def _oscillator(u: F64, dt: float, hz: float, zeta: float) -> tuple[F64, F64]:
     return out[0], out[1]
 
 
-def imu_truth(arm: ArmModel, subject: Subject, n_samples: int, rate_hz: float) -> ImuTruth:
-    """Exact sensor motion and readings at session times ``i / rate_hz``, i < ``n_samples``."""
-    sub = max(1, int(np.ceil(MIN_GRID_HZ / rate_hz)))
-    dt = 1.0 / (rate_hz * sub)
-    tau = np.arange((n_samples - 1) * sub + 1) * dt
+def _vee_skew(m: F64) -> F64:
+    """Vector of the skew-symmetric part of (N,3,3) matrices."""
+    return 0.5 * np.stack((m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0],
+                           m[:, 1, 0] - m[:, 0, 1]), axis=-1)
+
+
+def _bone(arm: ArmModel, tau: F64, r0: F64) -> tuple[Pose, F64, F64, F64]:
+    """Pose, body rate ω and its derivative ω̇ of A (N,3), acceleration of the point ``r0`` in R.
+
+    RᵀṘ = [ω]× and RᵀR̈ = [ω̇]× + [ω]×², whose skew parts give ω and ω̇.
+    """
     n = tau.shape[0]
     offsets = np.arange(-2, 3) * STEP_S
     pose = arm.pose((tau[None, :] + offsets[:, None]).ravel())
     s, _, dds = _stencil(pose.shoulder.reshape(5, n, 3))
     rot, drot, ddrot = _stencil(pose.rot.reshape(5, n, 3, 3))
+    omega = _vee_skew(np.einsum("nji,njk->nik", rot, drot))
+    omega_dot = _vee_skew(np.einsum("nji,njk->nik", rot, ddrot))
+    acc = dds + np.einsum("nij,j->ni", ddrot, r0)
+    joints = Pose(s, pose.elbow.reshape(5, n, 3)[2], pose.wrist.reshape(5, n, 3)[2], rot)
+    return joints, omega, omega_dot, acc
+
+
+def grid_points(n_samples: int, rate_hz: float) -> int:
+    """Size of the evaluation grid behind ``n_samples`` IMU samples (for progress bars)."""
+    return (n_samples - 1) * max(1, int(np.ceil(MIN_GRID_HZ / rate_hz))) + 1
+
+
+def imu_truth(
+    arm: ArmModel,
+    subject: Subject,
+    n_samples: int,
+    rate_hz: float,
+    progress: Callable[[int], None] | None = None,
+) -> ImuTruth:
+    """Exact sensor motion and readings at session times ``i / rate_hz``, i < ``n_samples``.
+
+    ``progress`` is called with the number of grid points done after each chunk.
+    """
+    sub = max(1, int(np.ceil(MIN_GRID_HZ / rate_hz)))
+    dt = 1.0 / (rate_hz * sub)
+    n = (n_samples - 1) * sub + 1
     r0, tangential, q_mount = mount_geometry(subject)
 
-    # Body angular velocity of A: vee of the skew part of Rᵀ Ṙ.
-    skew = np.einsum("nji,njk->nik", rot, drot)
-    omega_a = 0.5 * np.stack((skew[:, 2, 1] - skew[:, 1, 2], skew[:, 0, 2] - skew[:, 2, 0],
-                              skew[:, 1, 0] - skew[:, 0, 1]), axis=-1)
+    # Pass 1, in chunks to bound memory: the bone's motion at the samples, and the bone's
+    # acceleration at the sensor (in A) on the whole grid, which drives the soft tissue.
+    acc_bone_a = np.empty((n, 3))
+    shoulder, elbow, wrist = (np.empty((n_samples, 3)) for _ in range(3))
+    rot = np.empty((n_samples, 3, 3))
+    omega, omega_dot, acc_bone = (np.empty((n_samples, 3)) for _ in range(3))
+    for first in range(0, n, CHUNK):
+        idx = np.arange(first, min(first + CHUNK, n))
+        pose, w, dw, acc = _bone(arm, idx.astype(np.float64) * dt, r0)
+        acc_bone_a[idx] = np.einsum("nji,nj->ni", pose.rot, acc)
+        on = idx % sub == 0
+        k = idx[on] // sub
+        shoulder[k], elbow[k], wrist[k], rot[k] = (
+            pose.shoulder[on], pose.elbow[on], pose.wrist[on], pose.rot[on])
+        omega[k], omega_dot[k], acc_bone[k] = w[on], dw[on], acc[on]
+        if progress is not None:
+            progress(idx.shape[0])
 
-    # Soft tissue: base-excited oscillators driven by the bone's acceleration at the sensor.
-    acc_bone = dds + np.einsum("nij,j->ni", ddrot, r0)
-    acc_bone_a = np.einsum("nji,nj->ni", rot, acc_bone)
+    # Soft tissue: base-excited oscillators (3 translations in A, 1 rotation about a fixed
+    # axis of A) whose quasi-static deflection is −compliance × acceleration.
     w2 = (2 * np.pi * subject.wobble_hz) ** 2
     trans_gain = subject.wobble_mm_per_m_s2 * 1e-3 * np.array([WOBBLE_AXIAL, 1.0, 1.0])
     rot_gain = np.radians(subject.wobble_deg_per_m_s2)
@@ -105,29 +151,27 @@ def imu_truth(arm: ArmModel, subject: Subject, n_samples: int, rate_hz: float) -
                                  -w2 * rot_gain * (acc_bone_a @ tangential)))
         x, dx = _oscillator(drive, dt, subject.wobble_hz, subject.wobble_damping)
         ddx = drive - 2 * subject.wobble_damping * np.sqrt(w2) * dx - w2 * x
+        x, dx, ddx = x[::sub], dx[::sub], ddx[::sub]
     else:
-        x = dx = ddx = np.zeros((n, 4))
+        x = dx = ddx = np.zeros((n_samples, 4))
 
-    k = slice(None, None, sub)
-    wob, dwob, ddwob = x[k, :3], dx[k, :3], ddx[k, :3]
-    alpha, dalpha = x[k, 3], dx[k, 3]
-    rot_k = rot[k]
-    r_total = r0 + wob
-    position = s[k] + np.einsum("nij,nj->ni", rot_k, r_total)
-    acc_world = (dds[k] + np.einsum("nij,nj->ni", ddrot[k], r_total)
-                 + 2 * np.einsum("nij,nj->ni", drot[k], dwob)
-                 + np.einsum("nij,nj->ni", rot_k, ddwob))
+    # Pass 2: the sensor = bone point r0 + wobble, rotated by wobble and mounting.
+    wob, dwob, ddwob = x[:, :3], dx[:, :3], ddx[:, :3]
+    alpha, dalpha = x[:, 3], dx[:, 3]
+    position = shoulder + np.einsum("nij,nj->ni", rot, r0 + wob)
+    relative = (np.cross(omega_dot, wob) + np.cross(omega, np.cross(omega, wob))
+                + 2 * np.cross(omega, dwob) + ddwob)  # d²/dt² of R·w, in A
+    acc_world = acc_bone + np.einsum("nij,nj->ni", rot, relative)
     axis = np.array(subject.wobble_axis)
-    q_wobble = quat.from_axis_angle(np.broadcast_to(axis, (alpha.shape[0], 3)), alpha)
-    q_segment = quat.continuous(quat.from_matrix(rot_k))
+    q_wobble = quat.from_axis_angle(np.broadcast_to(axis, (n_samples, 3)), alpha)
+    q_segment = quat.continuous(quat.from_matrix(rot))
     q_sensor = quat.continuous(quat.multiply(quat.multiply(q_segment, q_wobble), q_mount))
     # Angular velocity of R_A·R_w·R_m in the sensor frame (wobble is about a fixed axis).
-    omega_w = quat.rotate(quat.conjugate(q_wobble), omega_a[k]) + dalpha[:, None] * axis
+    omega_w = quat.rotate(quat.conjugate(q_wobble), omega) + dalpha[:, None] * axis
     gyr = quat.rotate(quat.conjugate(q_mount), omega_w)
-    acc = quat.rotate(quat.conjugate(q_sensor), acc_world + np.array([0.0, 0.0, GRAVITY]))
-    joints = Pose(pose.shoulder.reshape(5, n, 3)[2, k], pose.elbow.reshape(5, n, 3)[2, k],
-                  pose.wrist.reshape(5, n, 3)[2, k], rot_k)
-    return ImuTruth(joints, position, q_segment, q_sensor, gyr, acc)
+    acc_out = quat.rotate(quat.conjugate(q_sensor), acc_world + np.array([0.0, 0.0, GRAVITY]))
+    joints = Pose(shoulder, elbow, wrist, rot)
+    return ImuTruth(joints, position, q_segment, q_sensor, gyr, acc_out)
 
 
 @dataclass(frozen=True)

