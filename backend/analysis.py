@@ -54,10 +54,17 @@ def estimate_lines(rows: dict[str, np.ndarray]) -> list[str]:
             ",".join(
                 (
                     repr(t[i]),
-                    _fmt(el[i][0], 5), _fmt(el[i][1], 5), _fmt(el[i][2], 5),
-                    _fmt(sh[i][0], 5), _fmt(sh[i][1], 5), _fmt(sh[i][2], 5),
-                    _fmt(ang[i], 3), _fmt(hdg[i], 3), "1" if conv[i] else "0",
-                    _fmt(disp[i], 5), STATE_NAMES[int(st[i])],
+                    _fmt(el[i][0], 5),
+                    _fmt(el[i][1], 5),
+                    _fmt(el[i][2], 5),
+                    _fmt(sh[i][0], 5),
+                    _fmt(sh[i][1], 5),
+                    _fmt(sh[i][2], 5),
+                    _fmt(ang[i], 3),
+                    _fmt(hdg[i], 3),
+                    "1" if conv[i] else "0",
+                    _fmt(disp[i], 5),
+                    STATE_NAMES[int(st[i])],
                 )
             )
         )
@@ -66,14 +73,22 @@ def estimate_lines(rows: dict[str, np.ndarray]) -> list[str]:
 
 def detail_lines(rows: dict[str, np.ndarray]) -> list[str]:
     cols = [
-        rows["t"][:, None], rows["q_ra"], rows["heading_std_deg"][:, None],
-        rows["heading_confidence"][:, None], rows["upper_arm_elevation_deg"][:, None],
-        rows["upper_arm_azimuth_deg"][:, None], rows["nominal_shoulder"],
-        rows["conv_elbow_angle_deg"][:, None], rows["wrist"], rows["upper_arm_length_m"][:, None],
+        rows["t"][:, None],
+        rows["q_ra"],
+        rows["heading_std_deg"][:, None],
+        rows["heading_confidence"][:, None],
+        rows["upper_arm_elevation_deg"][:, None],
+        rows["upper_arm_azimuth_deg"][:, None],
+        rows["nominal_shoulder"],
+        rows["conv_elbow_angle_deg"][:, None],
+        rows["wrist"],
+        rows["upper_arm_length_m"][:, None],
     ]
     m = np.concatenate(cols, axis=1).tolist()
     digits = (6, 6, 6, 6, 6, 3, 4, 3, 3, 5, 5, 5, 3, 5, 5, 5, 4)
-    return [",".join(repr(r[0]) if j == 0 else _fmt(r[j], digits[j]) for j in range(len(r))) for r in m]
+    return [
+        ",".join(repr(r[0]) if j == 0 else _fmt(r[j], digits[j]) for j in range(len(r))) for r in m
+    ]
 
 
 def estimate_payload(rows: dict[str, np.ndarray]) -> dict[str, list[Any]]:
@@ -84,9 +99,11 @@ def estimate_payload(rows: dict[str, np.ndarray]) -> dict[str, list[Any]]:
 
     return {
         "t": rows["t"].tolist(),
-        "elbow_x": col(rows["elbow"][:, 0]), "elbow_y": col(rows["elbow"][:, 1]),
+        "elbow_x": col(rows["elbow"][:, 0]),
+        "elbow_y": col(rows["elbow"][:, 1]),
         "elbow_z": col(rows["elbow"][:, 2]),
-        "shoulder_x": col(rows["shoulder"][:, 0]), "shoulder_y": col(rows["shoulder"][:, 1]),
+        "shoulder_x": col(rows["shoulder"][:, 0]),
+        "shoulder_y": col(rows["shoulder"][:, 1]),
         "shoulder_z": col(rows["shoulder"][:, 2]),
         "elbow_angle_deg": col(rows["elbow_angle_deg"]),
         "heading_offset_deg": col(rows["heading_offset_deg"]),
@@ -121,13 +138,23 @@ class DeviceRun:
         if out.n:
             self.est_lines.extend(estimate_lines(out.rows))
             self.det_lines.extend(detail_lines(out.rows))
-            for k in ("t", "shoulder_displacement_m", "elbow_angle_deg", "upper_arm_elevation_deg",
-                      "upper_arm_azimuth_deg", "heading_converged", "state"):
+            for k in (
+                "t",
+                "shoulder_displacement_m",
+                "elbow_angle_deg",
+                "upper_arm_elevation_deg",
+                "upper_arm_azimuth_deg",
+                "heading_converged",
+                "state",
+            ):
                 self._stats.setdefault(k, []).append(out.rows[k])
         for v in out.cycles:
             d = {
-                "start": v.start, "end": v.end, "outside_fraction": v.outside_fraction,
-                "compensatory": v.compensatory, "coverage": v.coverage,
+                "start": v.start,
+                "end": v.end,
+                "outside_fraction": v.outside_fraction,
+                "compensatory": v.compensatory,
+                "coverage": v.coverage,
                 "max_displacement_m": _finite(v.max_displacement_m),
                 "mean_displacement_m": _finite(v.mean_displacement_m),
             }
@@ -144,8 +171,13 @@ class DeviceRun:
             if not len(a):
                 return {"min": None, "max": None, "p5": None, "p95": None, "range": None}
             p5, p95 = np.percentile(a, [5, 95])
-            return {"min": float(a.min()), "max": float(a.max()), "p5": float(p5),
-                    "p95": float(p95), "range": float(p95 - p5)}
+            return {
+                "min": float(a.min()),
+                "max": float(a.max()),
+                "p5": float(p5),
+                "p95": float(p95),
+                "range": float(p95 - p5),
+            }
 
         disp = st.get("shoulder_displacement_m", np.zeros(0))
         disp = disp[np.isfinite(disp)]
@@ -258,8 +290,12 @@ def analyze(
 def write_outputs(run: DeviceRun, report: dict[str, Any], out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     (out / "estimates.csv").write_text(CSV_HEADER + "\n" + "".join(x + "\n" for x in run.est_lines))
-    (out / "details.csv").write_text(DETAILS_HEADER + "\n" + "".join(x + "\n" for x in run.det_lines))
-    (out / "report.json").write_text(json.dumps(report, indent=1, allow_nan=False, default=_json_default))
+    (out / "details.csv").write_text(
+        DETAILS_HEADER + "\n" + "".join(x + "\n" for x in run.det_lines)
+    )
+    (out / "report.json").write_text(
+        json.dumps(report, indent=1, allow_nan=False, default=_json_default)
+    )
 
 
 def _finite(x: float) -> float | None:

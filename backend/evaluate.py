@@ -30,7 +30,7 @@ def _stats(e: np.ndarray) -> dict[str, float | int | None]:
     e = e[np.isfinite(e)]
     if not len(e):
         return {"n": 0, "median": None, "p95": None}
-    return {"n": int(len(e)), "median": float(np.median(e)), "p95": float(np.percentile(e, 95))}
+    return {"n": len(e), "median": float(np.median(e)), "p95": float(np.percentile(e, 95))}
 
 
 def load_truth(path: str | Path) -> dict[str, Any]:
@@ -84,7 +84,11 @@ def evaluate(analysis_dir: str | Path, truth: dict[str, Any]) -> dict[str, Any]:
             "conv_elbow_deg": _stats(e_ang_conv[m]),
         }
     # cycle verdicts: each truth cycle of a pure phase against the overlapping estimate cycle
-    confusion = {f"{a}->{b}": 0 for a in ("proper", "compensatory") for b in ("proper", "compensatory", "missed")}
+    confusion = {
+        f"{a}->{b}": 0
+        for a in ("proper", "compensatory")
+        for b in ("proper", "compensatory", "missed")
+    }
     est_cycles = report["cycles"]
     s_est = np.array([c["start"] for c in est_cycles]) if est_cycles else np.zeros(0)
     e_est = np.array([c["end"] for c in est_cycles]) if est_cycles else np.zeros(0)
@@ -135,7 +139,8 @@ def _deg(x: float | None) -> str:
 
 def format_tables(res: dict[str, Any]) -> str:
     lines = [
-        "| phase | shoulder median / p95 (cm) | conventional (cm) | elbow median / p95 (°) | conventional (°) |",
+        "| phase | shoulder median / p95 (cm) | conventional (cm) "
+        "| elbow median / p95 (°) | conventional (°) |",
         "|---|---|---|---|---|",
     ]
     for name in ("proper", "compensatory", "all"):
@@ -152,7 +157,8 @@ def format_tables(res: dict[str, Any]) -> str:
         "| true \\ estimated | proper | compensatory | missed |",
         "|---|---|---|---|",
         f"| proper | {c['proper->proper']} | {c['proper->compensatory']} | {c['proper->missed']} |",
-        f"| compensatory | {c['compensatory->proper']} | {c['compensatory->compensatory']} | {c['compensatory->missed']} |",
+        f"| compensatory | {c['compensatory->proper']} | {c['compensatory->compensatory']} "
+        f"| {c['compensatory->missed']} |",
         "",
         f"heading converged {res['heading']['convergence_s']} s after the start of motion; "
         f"upper-arm length used {res['upper_arm_length_m']} m",

@@ -21,8 +21,10 @@ Line = tuple[str | None, Any]
 
 def _open_text(path: Path, mode: str) -> IO[str]:
     if path.suffix == ".gz":
-        return io.TextIOWrapper(gzip.open(path, mode + "b", compresslevel=6), encoding="utf-8")
-    return open(path, mode, encoding="utf-8")  # noqa: SIM115
+        # mtime=0: the same messages give byte-identical files
+        raw = gzip.GzipFile(path, mode + "b", compresslevel=6, mtime=0)
+        return io.TextIOWrapper(raw, encoding="utf-8")
+    return open(path, mode, encoding="utf-8")
 
 
 class _Line(msgspec.Struct):
@@ -39,8 +41,8 @@ def read(path: str | Path) -> Iterator[Line]:
     The payload comes back as its raw JSON bytes for :func:`backend.wire.decode`.
     """
     p = Path(path)
-    with gzip.open(p, "rb") if p.suffix == ".gz" else open(p, "rb") as fh:  # noqa: SIM115
-        for line in fh:
+    with gzip.open(p, "rb") if p.suffix == ".gz" else open(p, "rb") as fh:
+        for line in _lines(fh):
             if not line.strip():
                 continue
             try:
@@ -49,6 +51,18 @@ def read(path: str | Path) -> Iterator[Line]:
                 yield None, line[:200].decode("utf-8", "replace")
                 continue
             yield obj.key, obj.payload
+
+
+def _lines(fh: IO[bytes]) -> Iterator[bytes]:
+    """Lines of a file that may end mid-write (a killed recorder): a truncated gzip stream
+    or a last line without its newline is where the recording stops, not an error."""
+    try:
+        for line in fh:
+            if line.endswith(b"\n"):
+                yield line
+            # an unterminated last line was cut by the crash: dropped
+    except EOFError:
+        return
 
 
 def write(path: str | Path, messages: Iterable[tuple[str, Any]]) -> int:

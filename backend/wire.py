@@ -16,11 +16,10 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, TypeAlias
 
-import numpy as np
-from numpy.typing import NDArray
-
 import msgspec
+import numpy as np
 import orjson
+from numpy.typing import NDArray
 
 from backend import keys
 
@@ -55,7 +54,7 @@ class ImuMessage:
 
 @dataclass(frozen=True, slots=True)
 class RobotMessage:
-    """Cuff positions in the robot frame, metres: ``wrist``/``proximal`` (N,3), ``elbow`` optional."""
+    """Cuff positions in the robot frame, m: ``wrist``, ``proximal`` (N,3); ``elbow`` optional."""
 
     device: str
     t: FloatArray
@@ -236,7 +235,9 @@ def decode(
         n = len(c.t)
         el, wr = _arr(c.elbow, "elbow", n), _arr(c.wrist, "wrist", n)
         sh = _arr(c.shoulder, "shoulder", n) if c.shoulder is not None else None
-        t = _check(c.t, c.seq, not isinstance(payload, dict), el, wr, *(() if sh is None else (sh,)))
+        t = _check(
+            c.t, c.seq, not isinstance(payload, dict), el, wr, *(() if sh is None else (sh,))
+        )
         return CameraMessage(pk.device, t, el, wr, sh, c.seq)
     if pk.kind == "event":
         return _event(pk.device, _load(payload))
@@ -317,8 +318,13 @@ def feedback_state(t: float, state: str) -> dict[str, Any]:
     return {"t": t, "type": "state", "state": state}
 
 
-def feedback_cycle(start: float, end: float, outside_fraction: float, compensatory: bool) -> dict[str, Any]:
+def feedback_cycle(
+    start: float, end: float, outside_fraction: float, compensatory: bool
+) -> dict[str, Any]:
     return {
-        "type": "cycle", "start": start, "end": end,
-        "outside_fraction": outside_fraction, "compensatory": compensatory,
+        "type": "cycle",
+        "start": start,
+        "end": end,
+        "outside_fraction": outside_fraction,
+        "compensatory": compensatory,
     }

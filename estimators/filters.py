@@ -22,7 +22,9 @@ def butter_sos(order: int, cutoff_hz: float, fs_hz: float, btype: str = "lowpass
 
 @lru_cache(maxsize=64)
 def _zi_unit(order: int, cutoff_hz: float, fs_hz: float, btype: str = "lowpass") -> Array:
-    return np.asarray(signal.sosfilt_zi(butter_sos(order, cutoff_hz, fs_hz, btype)), dtype=np.float64)
+    return np.asarray(
+        signal.sosfilt_zi(butter_sos(order, cutoff_hz, fs_hz, btype)), dtype=np.float64
+    )
 
 
 @lru_cache(maxsize=64)
@@ -35,7 +37,9 @@ def dc_group_delay_s(order: int, cutoff_hz: float, fs_hz: float) -> float:
 
 @dataclass(frozen=True, slots=True)
 class LowPass:
-    """A Butterworth filter (low-pass unless ``btype``) applied along axis 0 of (N, C) data; state is (n_sections, 2, C)."""
+    """A Butterworth filter (low-pass unless ``btype``) along axis 0 of (N, C) data.
+
+    State is (n_sections, 2, C)."""
 
     order: int
     cutoff_hz: float
@@ -53,5 +57,7 @@ class LowPass:
 
     def __call__(self, x: Array, zi: Array) -> tuple[Array, Array]:
         """Filter ``x`` (N, C) from state ``zi``; chunking gives identical output."""
+        if len(x) == 0:
+            return x.copy(), zi
         y, zf = signal.sosfilt(self.sos, x, axis=0, zi=zi)
         return np.asarray(y, dtype=np.float64), np.asarray(zf, dtype=np.float64)

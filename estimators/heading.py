@@ -158,7 +158,7 @@ def update_paper(state: HeadingState, w: Window, params: HeadingParams, t: float
     if motion_subwindows(w, params, t) < params.min_motion_subwindows or len(a) == 0:
         return False
     sc, ss = sums(a, b)
-    if state.delta is None or not state.converged and state.n_counted < params.n_two_step:
+    if state.delta is None or (not state.converged and state.n_counted < params.n_two_step):
         coarse = np.radians(np.arange(0.0, 360.0, params.coarse_step_deg))
         d = optdelta(coarse, sc, ss)  # eq. 6
         d = optdelta(_grid(d, params.fine_halfwidth_deg, params.fine_step_deg), sc, ss)  # eq. 7
@@ -208,7 +208,9 @@ def fit_drift(
         resid = max(e2 - 2.0 * float(np.sum(f)), 1e-12)
         kappa = n_eff / n / (resid / (2.0 * n))
         sf, sft, sftt = float(np.sum(f)), float(np.sum(f * tau)), float(np.sum(f * tau * tau))
-        grad = np.array([kappa * float(np.sum(g)), kappa * float(np.sum(g * tau)) - (r - rate0) / sig_rho**2])
+        grad = np.array(
+            [kappa * float(np.sum(g)), kappa * float(np.sum(g * tau)) - (r - rate0) / sig_rho**2]
+        )
         h = np.array([[kappa * sf, kappa * sft], [kappa * sft, kappa * sftt + 1.0 / sig_rho**2]])
         if not np.all(np.isfinite(h)) or np.linalg.det(h) <= 0:
             break
@@ -259,7 +261,13 @@ def estimate_lag(w: Window, params: HeadingParams, dt: float) -> tuple[float, fl
 
 
 def _fit_with_sensor_errors(
-    state: HeadingState, a: Array, b: Array, tau: Array, cl: Array, rate0: float, params: HeadingParams
+    state: HeadingState,
+    a: Array,
+    b: Array,
+    tau: Array,
+    cl: Array,
+    rate0: float,
+    params: HeadingParams,
 ) -> tuple[float, float, float, Array]:
     """Heading and drift jointly with the accelerometer bias and the lever-arm error.
 

@@ -110,7 +110,13 @@ class PipelineParams:
                 if not isinstance(v, list) or len(v) != n or not all(_num(x) for x in v):
                     raise ParamsError(f"{k} must be a list of {n} numbers")
                 kw[k] = tuple(float(x) for x in v)
-            elif k in ("displacement_norm", "method", "arm_length", "cycle_mode", "elbow_angle_timing"):
+            elif k in (
+                "displacement_norm",
+                "method",
+                "arm_length",
+                "cycle_mode",
+                "elbow_angle_timing",
+            ):
                 kw[k] = v
             elif k == "extra":
                 kw[k] = dict(v)
@@ -157,4 +163,9 @@ class PipelineParams:
 
 
 def _num(x: Any) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and x == x and abs(x) != float("inf")
+    return (
+        isinstance(x, (int, float))
+        and not isinstance(x, bool)
+        and x == x
+        and abs(x) != float("inf")
+    )

@@ -286,7 +286,9 @@ class _ImuStage:
             c = np.zeros((len(t), 9))
         else:
             u = quat.rotate(q_is, np.broadcast_to(self.r, v.shape))
-            c = np.concatenate([quat.rotate(q_is, np.broadcast_to(e, v.shape)) for e in np.eye(3)], axis=1)
+            c = np.concatenate(
+                [quat.rotate(q_is, np.broadcast_to(e, v.shape)) for e in np.eye(3)], axis=1
+            )
         self.t = np.concatenate((self.t, t))
         self.segid = np.concatenate((self.segid, np.full(len(t), self.seg)))
         self.q = np.concatenate((self.q, quat.mul(q_is, self.mount)))
@@ -577,7 +579,9 @@ class Pipeline:
         # nominal shoulder: specs in feed order: ("point", t, xyz) or ("auto", t, None)
         self._specs: list[tuple[str, float, Array | None]] = []
         if p.nominal_shoulder_m is not None:
-            self._specs.append(("param", -math.inf, np.array(p.nominal_shoulder_m, dtype=np.float64)))
+            self._specs.append(
+                ("param", -math.inf, np.array(p.nominal_shoulder_m, dtype=np.float64))
+            )
         else:
             self._specs.append(("auto", -math.inf, None))
         self._nom_spec = -1
@@ -608,15 +612,29 @@ class Pipeline:
     def feed(self, msg: Any) -> bool:
         """Take one decoded message (IMU, robot or event). Returns False if rejected."""
         if hasattr(msg, "gyr"):
-            return self.feed_imu(msg.t, msg.gyr, msg.acc, getattr(msg, "seq", None), getattr(msg, "segment", "upperarm"))
+            return self.feed_imu(
+                msg.t,
+                msg.gyr,
+                msg.acc,
+                getattr(msg, "seq", None),
+                getattr(msg, "segment", "upperarm"),
+            )
         if hasattr(msg, "proximal"):
-            return self.feed_robot(msg.t, msg.wrist, msg.proximal, getattr(msg, "elbow", None), getattr(msg, "seq", None))
+            return self.feed_robot(
+                msg.t,
+                msg.wrist,
+                msg.proximal,
+                getattr(msg, "elbow", None),
+                getattr(msg, "seq", None),
+            )
         if hasattr(msg, "type") and hasattr(msg, "t"):
             return self.feed_event(float(msg.t), str(msg.type), getattr(msg, "point", None))
         self.quality.reject("unsupported_message")
         return False
 
-    def feed_imu(self, t: Array, gyr: Array, acc: Array, seq: int | None = None, segment: str = "upperarm") -> bool:
+    def feed_imu(
+        self, t: Array, gyr: Array, acc: Array, seq: int | None = None, segment: str = "upperarm"
+    ) -> bool:
         if segment != "upperarm":
             self.quality.reject(f"ignored_segment_{segment}")
             return False
@@ -630,7 +648,12 @@ class Pipeline:
         return True
 
     def feed_robot(
-        self, t: Array, wrist: Array, proximal: Array, elbow: Array | None = None, seq: int | None = None
+        self,
+        t: Array,
+        wrist: Array,
+        proximal: Array,
+        elbow: Array | None = None,
+        seq: int | None = None,
     ) -> bool:
         if not self._robot_stream.admit(float(t[0]), seq, self.quality):
             return False
@@ -679,6 +702,44 @@ class Pipeline:
             i += 1
         self._n_decided = i
 
+    def status(self) -> dict[str, Any]:
+        """What a dashboard shows beside the numbers: convergence and its progress, the
+        heading's confidence, the estimated sensor errors, and the data quality."""
+        s = self._hstate
+        hp = self.hp
+        if s.converged:
+            progress = 1.0
+        elif hp.method == "paper":
+            progress = min(s.n_counted / (hp.n_two_step + hp.converge_count), 0.99)
+        else:
+            # motion seen so far (sub-windows) and the heading's certainty, whichever lags
+            need = hp.min_motion_subwindows * hp.window_s / hp.n_subwindows
+            moved = 0.0 if self.first_motion_time is None else need
+            certainty = (
+                0.0
+                if not math.isfinite(s.std)
+                else min(1.0, math.radians(hp.max_converge_std_deg) / s.std)
+            )
+            progress = min(0.99, 0.5 * moved / need + 0.5 * certainty)
+        std = math.degrees(s.std) if math.isfinite(s.std) else None
+        return {
+            "heading_converged": s.converged,
+            "convergence_progress": progress,
+            "heading_offset_deg": None if s.delta is None else math.degrees(s.delta) % 360.0,
+            "heading_std_deg": std,
+            "heading_confidence": 0.0 if std is None else 1.0 / (1.0 + (std / 3.0) ** 2),
+            "heading_drift_dps": math.degrees(s.rate),
+            "excitation_m_s2": s.excitation,
+            "first_motion_t": self.first_motion_time,
+            "converged_t": self.convergence_time,
+            "robot_latency_s": s.lag,
+            "acc_bias_m_s2": s.acc_bias.tolist(),
+            "lever_error_m": s.lever_error.tolist(),
+            "upper_arm_length_m": self._arm_len,
+            "upper_arm_length_measured": self.arm_length_estimate is not None,
+            "quality": self.quality.as_dict(),
+        }
+
     # ------------------------------------------------------------------ computing
 
     def poll(self) -> Output:
@@ -699,7 +760,9 @@ class Pipeline:
                 wrist, np.concatenate([c[2] for c in pend_r]), self.params.cuff_to_elbow_m
             )
             if any(c[3] is not None for c in pend_r):  # a robot that knows the elbow itself
-                given = [c[3] if c[3] is not None else np.full((len(c[0]), 3), np.nan) for c in pend_r]
+                given = [
+                    c[3] if c[3] is not None else np.full((len(c[0]), 3), np.nan) for c in pend_r
+                ]
                 e = np.concatenate(given)
                 p_e = np.where(np.isfinite(e), e, p_e)
             self._row_wrist.append(wrist)
@@ -745,7 +808,14 @@ class Pipeline:
             if hp.method == "improved" and self._hstate.converged:
                 step = hp.converged_interval_s
             self._t_update = (math.floor(t_up / step + 1e-9) + 1) * step
-            seg = int(self._grid.seg[min(int(np.searchsorted(self._grid.t, t_up, side="right")) - 1, len(self._grid.seg) - 1)])
+            seg = int(
+                self._grid.seg[
+                    min(
+                        int(np.searchsorted(self._grid.t, t_up, side="right")) - 1,
+                        len(self._grid.seg) - 1,
+                    )
+                ]
+            )
             if seg != self._hseg:
                 self._hstate = hd.HeadingState()
                 self._hseg = seg
@@ -762,7 +832,9 @@ class Pipeline:
                 self.convergence_time = t_up
             s = self._hstate
             d = math.nan if s.delta is None else s.delta
-            snaps.append((t_up, d, s.rate, s.t_update, s.std, float(s.converged), float(seg), s.lag))
+            snaps.append(
+                (t_up, d, s.rate, s.t_update, s.std, float(s.converged), float(seg), s.lag)
+            )
         if snaps:
             self._snaps = np.concatenate((self._snaps, np.array(snaps)))
             self._snap_t = self._snaps[:, 0]
@@ -841,13 +913,17 @@ class Pipeline:
             "elbow": p_e,
             "shoulder": shoulder,
             "elbow_angle_deg": angle,
-            "heading_offset_deg": np.where(np.isfinite(delta) & ok, np.degrees(np.mod(delta, 2 * np.pi)), np.nan),
+            "heading_offset_deg": np.where(
+                np.isfinite(delta) & ok, np.degrees(np.mod(delta, 2 * np.pi)), np.nan
+            ),
             "heading_converged": good,
             "shoulder_displacement_m": disp,
             "state": codes.astype(np.int8),
             "q_ra": q_ra,
             "heading_std_deg": np.where(np.isfinite(std_deg), std_deg, np.nan),
-            "heading_confidence": np.where(np.isfinite(std_deg), 1.0 / (1.0 + (std_deg / 3.0) ** 2), 0.0),
+            "heading_confidence": np.where(
+                np.isfinite(std_deg), 1.0 / (1.0 + (std_deg / 3.0) ** 2), 0.0
+            ),
             "upper_arm_elevation_deg": np.degrees(np.arccos(np.clip(-x_now[:, 2], -1.0, 1.0))),
             "upper_arm_azimuth_deg": np.degrees(np.arctan2(x_now[:, 0], x_now[:, 1])),
             "nominal_shoulder": nominal,
@@ -859,7 +935,9 @@ class Pipeline:
         out.cycles = list(verdicts)
         return out
 
-    def _elbow_angle(self, t: Array, x_now: Array, x_pair: Array, x_c: Array, latency: Array) -> Array:
+    def _elbow_angle(
+        self, t: Array, x_now: Array, x_pair: Array, x_c: Array, latency: Array
+    ) -> Array:
         """Elbow angle (eq. 11) at the row's time.
 
         The robot's forearm axis is ``latency`` old while the IMU's upper-arm axis is fresh;
@@ -935,7 +1013,7 @@ class Pipeline:
             k = int(spec[j])
             if k != self._nom_spec:
                 self._nom_spec = k
-                kind, t0, point = self._specs[k]
+                kind, _, point = self._specs[k]
                 self._nom_point = point.copy() if point is not None else None
                 self._nom_acc, self._nom_t0 = [], None
                 if point is not None and kind == "point":
@@ -959,7 +1037,9 @@ class Pipeline:
 
     def _trim(self) -> None:
         # keep what the next rows, grid points and heading windows can still need
-        keep = self._row_t[self._n_done] if self._n_done < len(self._row_t) else self._robot_frontier
+        keep = (
+            self._row_t[self._n_done] if self._n_done < len(self._row_t) else self._robot_frontier
+        )
         keep = min(keep - self.params.robot_time_offset_s, self._grid.frontier) - 1.0
         if math.isfinite(keep):
             self._imu.trim(keep)

@@ -421,7 +421,10 @@ def test_chain_classifies_synthetic_cycles():
         return verdicts, eps, np.concatenate(codes)
 
     verdicts, eps, codes = chain([1] * t.size)  # live: one robot sample per message
-    assert (verdicts, eps) == chain([])[:2]  # offline, all at once: identical
+    for sizes in ([], [7] * 400, np.random.default_rng(1).integers(1, 60, 300).tolist()):
+        v2, e2, c2 = chain(sizes)  # offline all at once, other chunkings: identical
+        assert (v2, e2) == (verdicts, eps)
+        np.testing.assert_array_equal(c2, codes)
     assert len(verdicts) == len(bs) - 1
     k_end = np.round(np.interp([v.end for v in verdicts], t, u) - ph).astype(int)
     for v, k in zip(verdicts, k_end, strict=True):

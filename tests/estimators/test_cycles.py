@@ -170,7 +170,7 @@ def run(seg: CycleSegmenter, t, wrist, sizes=None):
 
 
 def key(bs):
-    return [(float(b), b.cycle_start, b.source) for b in bs]
+    return [(float(b), b.cycle_start, b.source, b.detected_at) for b in bs]
 
 
 def true_time(t, u, level):
@@ -207,6 +207,8 @@ def test_path_finds_every_cycle_at_a_consistent_phase(seed, direction):
     assert k.tolist() == list(range(1, 20))
     assert np.max(np.abs(err)) < 0.3
     assert all(b.source == "path" for b in bs)
+    # reported at the first sample at/after the crossing
+    assert [b.detected_at for b in bs] == [t[t >= b][0] for b in bs]
     assert bs[0].cycle_start is None
     assert [b.cycle_start for b in bs[1:]] == [float(b) for b in bs[:-1]]
     # cycle durations against the true durations at that phase
@@ -266,6 +268,7 @@ def test_reach_finds_every_return(angle):
     assert np.max(np.abs(b - returns[nearest])) < 0.3
     assert not [x for x in b if in_rest(x, rest_iv)]
     assert all(x.source == "reach" for x in bs)
+    assert [x.detected_at for x in bs] == [t[t >= x][0] for x in bs]
     # the 15 s rest restarts the detector: the boundary after it opens a new sequence
     assert [i for i, x in enumerate(bs) if x.cycle_start is None] == [0, 10]
 
@@ -290,6 +293,7 @@ def test_auto_switches_from_path_to_events():
     ev = [b for b in rest if b.source == "event"]
     assert [float(b) for b in ev] == [31.0, 36.5, 41.7, 48.2]
     assert [b.cycle_start for b in ev] == [None, 31.0, 36.5, 41.7]
+    assert [b.detected_at for b in ev] == [31.0, 36.5, 41.7, 48.2]
 
 
 @settings(max_examples=25, deadline=None)
@@ -339,7 +343,8 @@ def test_late_event_keeps_its_time():
     assert [float(b) for b in seg.update(t[:100], wrist[:100])] == [2.0]  # data up to 3.96 s
     seg.add_event(3.5)  # arrives after data past 3.5 s
     late = seg.update(t[100:101], wrist[100:101])
-    assert key(late) == [(3.5, 2.0, "event")]
+    assert key(late) == [(3.5, 2.0, "event", math.nextafter(t[99], math.inf))]
+    assert seg.update(t[:0], wrist[:0]) == []
     seg.add_event(3.0)  # before the last boundary: cannot be honoured
     assert seg.update(t[101:], wrist[101:]) == []
 
@@ -385,7 +390,7 @@ def test_boundary_is_a_float_with_extras():
     assert b == 12.5 and b.closes_cycle and b.source == "event"
     assert json.dumps([b]) == "[12.5]"
     c = pickle.loads(pickle.dumps(b))
-    assert (float(c), c.cycle_start, c.source) == (12.5, 7.25, "event")
+    assert (float(c), c.cycle_start, c.source, c.detected_at) == (12.5, 7.25, "event", 12.5)
     assert not Boundary(3.0).closes_cycle
 
 

@@ -30,7 +30,9 @@ def test_sinusoid_identity_matches_direct_cost():
 def test_closed_form_recovers_heading(deg):
     a, b = _pair(math.radians(deg), noise=0.05)
     sc, ss = hd.sums(a, b)
-    assert math.degrees(hd.wrap(math.atan2(ss, sc) - math.radians(deg))) == pytest.approx(0, abs=0.5)
+    assert math.degrees(hd.wrap(math.atan2(ss, sc) - math.radians(deg))) == pytest.approx(
+        0, abs=0.5
+    )
 
 
 def test_drift_fit_recovers_offset_and_rate():

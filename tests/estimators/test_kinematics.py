@@ -50,7 +50,9 @@ def test_joint_specific_force_is_rigid_body_acceleration():
 
 
 def test_conventional_baseline_uses_fixed_shoulder():
-    x_a, ang = kin.conventional(np.array([[0.0, 0.3, 0.0]]), np.array([[0.0, 1.0, 0.0]]), np.zeros(3))
+    x_a, ang = kin.conventional(
+        np.array([[0.0, 0.3, 0.0]]), np.array([[0.0, 1.0, 0.0]]), np.zeros(3)
+    )
     np.testing.assert_allclose(x_a, [[0.0, 1.0, 0.0]])
     assert ang[0] == pytest.approx(0.0)
 

@@ -1,0 +1,224 @@
+// Types of the REST API (backend/schemas) and of the live WebSocket protocol.
+
+export type Side = "left" | "right";
+export type Norm = "horizontal" | "3d";
+export type IndicatorState = "ok" | "outside" | "warning";
+
+export interface Therapist {
+  id: number;
+  username: string;
+  is_admin: boolean;
+  active: boolean;
+  created_at: string;
+}
+
+export interface TokenOut {
+  access_token: string;
+  token_type: "bearer";
+  expires_at: string;
+  therapist: Therapist;
+}
+
+export interface Params {
+  upper_arm_length_m: number;
+  imu_to_elbow_m: number;
+  cuff_to_elbow_m: number;
+  tolerance_m: number;
+  max_outside_fraction: number;
+  displacement_norm: Norm;
+  warning_after_s: number;
+  nominal_shoulder_m: number[] | null;
+}
+
+export interface PatientFields {
+  code: string;
+  affected_side: Side;
+  upper_arm_length_m: number;
+  imu_to_elbow_m: number;
+  cuff_to_elbow_m: number;
+  tolerance_m: number;
+  max_outside_fraction: number;
+  displacement_norm: Norm;
+  warning_after_s: number;
+  notes: string;
+}
+
+export interface Patient extends PatientFields {
+  id: number;
+  created_by_id: number | null;
+  created_at: string;
+  updated_at: string;
+  params: Partial<Params> & Record<string, unknown>;
+}
+
+export interface Quality {
+  rejected?: Record<string, number>;
+  seq_lost?: Record<string, number>;
+  robot_gaps?: number;
+  imu_resets?: number;
+  imu_bridged_gaps?: number;
+  robot_bridged_gaps?: number;
+  heading_resets?: number;
+  rows_without_imu?: number;
+  gaps?: unknown[] | number;
+  [key: string]: unknown;
+}
+
+export interface Device {
+  name: string;
+  first_seen: string;
+  last_seen: string;
+  status: "online" | "offline";
+  stats: Record<string, unknown> | null;
+  active_session_id: number | null;
+}
+
+export interface NominalShoulder {
+  point: number[];
+  source: "params" | "event" | "auto" | "therapist" | "estimate";
+  set_at: string;
+  set_by: string | null;
+}
+
+export type SessionStatus = "active" | "stopped" | "interrupted";
+
+export interface Session {
+  id: number;
+  patient_id: number;
+  patient_code: string;
+  device: string;
+  therapist: string | null;
+  started_at: string;
+  stopped_at: string | null;
+  status: SessionStatus;
+  params: Partial<Params> & Record<string, unknown>;
+  recording_path: string | null;
+  nominal_shoulder: NominalShoulder | null;
+  summary: Record<string, unknown> | null;
+}
+
+export interface Cycle {
+  index: number;
+  start: number;
+  end: number;
+  outside_fraction: number;
+  compensatory: boolean;
+  coverage?: number | null;
+  peak_displacement_m?: number | null;
+  max_displacement_m?: number | null;
+  recorded_at?: string;
+}
+
+export interface OverlayLink {
+  path: string;
+  token: string;
+  expires_at: string;
+  device: string;
+  session_id: number;
+}
+
+export interface Range {
+  min: number | null;
+  max: number | null;
+  p5?: number | null;
+  p95?: number | null;
+  range: number | null;
+}
+
+/** The session report (GET /api/sessions/{id}/report); every part optional: older or
+ * interrupted sessions may lack some. */
+export interface Report {
+  device?: string;
+  cycles?: Cycle[];
+  unjudged_cycles?: Cycle[];
+  summary?: {
+    rows?: number;
+    cycles?: number;
+    compensatory_cycles?: number;
+    compensatory_share?: number | null;
+    time_outside_share?: number | null;
+  };
+  heading?: { method?: string; first_motion_t?: number | null; converged_t?: number | null };
+  upper_arm_length_m?: number;
+  upper_arm_length_estimated?: boolean;
+  shoulder_displacement_m?: { median: number | null; p95: number | null; max: number | null };
+  elbow_flexion_deg?: Range;
+  upper_arm_elevation_deg?: Range;
+  upper_arm_azimuth_deg?: Range;
+  cycle_duration_s?: { median: number | null; min: number | null; max: number | null };
+  data_quality?: Quality;
+  params?: Partial<Params> & Record<string, unknown>;
+  [key: string]: unknown;
+}
+
+// ---- WebSocket /api/ws/live and /api/ws/overlay --------------------------------------------
+
+export type Num = number | null;
+
+export interface EstimateRows {
+  t: number[];
+  elbow_x?: Num[];
+  elbow_y?: Num[];
+  elbow_z?: Num[];
+  shoulder_x?: Num[];
+  shoulder_y?: Num[];
+  shoulder_z?: Num[];
+  elbow_angle_deg?: Num[];
+  heading_offset_deg?: Num[];
+  heading_converged?: (0 | 1 | null)[];
+  shoulder_displacement_m?: Num[];
+  state?: (IndicatorState | null)[];
+  upper_arm_elevation_deg?: Num[];
+  upper_arm_azimuth_deg?: Num[];
+  heading_confidence?: Num[];
+  nominal_x?: Num[];
+  nominal_y?: Num[];
+  nominal_z?: Num[];
+  wrist_x?: Num[];
+  wrist_y?: Num[];
+  wrist_z?: Num[];
+  dx?: Num[];
+  dy?: Num[];
+}
+
+export interface StatusMsg {
+  type: "status";
+  device: string;
+  online: boolean;
+  session_id: number | null;
+  patient: string | null;
+  heading_converged: boolean;
+  convergence_progress: number;
+  heading_confidence?: number;
+  heading_std_deg?: number | null;
+  upper_arm_length_m?: number;
+  quality?: Quality;
+  rates_hz?: { imu?: number; robot?: number };
+}
+
+export interface HelloMsg {
+  type: "hello";
+  devices?: string[];
+}
+export interface EstimateMsg {
+  type: "estimate";
+  device?: string;
+  rows: EstimateRows;
+}
+export interface StateMsg {
+  type: "state";
+  device?: string;
+  t: number;
+  state: IndicatorState;
+}
+export interface CycleMsg {
+  type: "cycle";
+  device?: string;
+  start: number;
+  end: number;
+  outside_fraction: number;
+  compensatory: boolean;
+  index?: number;
+}
+
+export type LiveMsg = HelloMsg | StatusMsg | EstimateMsg | StateMsg | CycleMsg;

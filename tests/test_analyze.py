@@ -1,0 +1,130 @@
+"""`rehab analyze` and `rehab evaluate` exactly as contract §6."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from backend import recording
+from backend.analysis import CSV_HEADER, read_estimates
+from backend.cli import main
+from tests.conftest import Session
+
+
+@pytest.fixture(scope="module")
+def rec(tmp_path_factory: pytest.TempPathFactory, short_session: Session) -> Path:
+    d = tmp_path_factory.mktemp("rec")
+    recording.write(d / "recording.jsonl.gz", short_session.raw)
+    short_session.sim.truth.save(d / "truth.npz")
+    return d
+
+
+def test_analyze_writes_the_contract_files(rec: Path, short_session: Session, capsys) -> None:
+    assert main(["analyze", str(rec / "recording.jsonl.gz"), "--out", str(rec / "out")]) == 0
+    lines = (rec / "out" / "estimates.csv").read_text().splitlines()
+    assert lines[0] == CSV_HEADER
+    n_robot = sum(len(p["t"]) for k, p in short_session.raw if k.endswith("/robot"))
+    assert len(lines) - 1 == n_robot
+    est = read_estimates(rec / "out" / "estimates.csv")
+    assert set(np.unique(est["heading_converged"])) <= {0.0, 1.0}
+    assert set(est["state"]) <= {"", "ok", "outside", "warning"}
+    rep = json.loads((rec / "out" / "report.json").read_text())
+    assert rep["cycles"], "cycles are judged"
+    for c in rep["cycles"]:
+        assert {"start", "end", "outside_fraction", "compensatory"} <= set(c)
+        assert isinstance(c["compensatory"], bool) and c["end"] > c["start"]
+    assert "estimates" in capsys.readouterr().out
+
+
+def test_analyze_is_deterministic(rec: Path) -> None:
+    main(["analyze", str(rec / "recording.jsonl.gz"), "--out", str(rec / "a")])
+    main(["analyze", str(rec / "recording.jsonl.gz"), "--out", str(rec / "b")])
+    for f in ("estimates.csv", "details.csv", "report.json"):
+        assert (rec / "a" / f).read_bytes() == (rec / "b" / f).read_bytes()
+
+
+def test_params_file_and_its_errors(rec: Path, tmp_path: Path) -> None:
+    good = tmp_path / "p.json"
+    good.write_text(json.dumps({"tolerance_m": 0.05, "displacement_norm": "3d"}))
+    assert (
+        main(
+            [
+                "analyze",
+                str(rec / "recording.jsonl.gz"),
+                "--params",
+                str(good),
+                "--out",
+                str(tmp_path / "o"),
+            ]
+        )
+        == 0
+    )
+    rep = json.loads((tmp_path / "o" / "report.json").read_text())
+    assert rep["params"]["tolerance_m"] == 0.05
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"tolerance": 0.05}))
+    with pytest.raises(SystemExit, match="unknown parameter"):
+        main(
+            [
+                "analyze",
+                str(rec / "recording.jsonl.gz"),
+                "--params",
+                str(bad),
+                "--out",
+                str(tmp_path / "x"),
+            ]
+        )
+
+
+def test_bad_lines_are_counted_not_fatal(rec: Path, tmp_path: Path, short_session: Session) -> None:
+    raw = list(short_session.raw[:3000])
+    raw.insert(100, ("rehab/sim01/robot", {"t": [1.0], "wrist": [[0, 0]], "proximal": [[0, 0, 0]]}))
+    raw.insert(200, ("rehab/sim01/bogus", {}))
+    raw.insert(
+        300, ("rehab/sim01/imu/upperarm", {"t": [0.0], "gyr": [[0, 0, 0]], "acc": [[0, 0, 9.8]]})
+    )
+    path = tmp_path / "r.jsonl"
+    recording.write(path, raw)
+    with path.open("a") as fh:
+        fh.write('not json\n{"key": 1}\n')
+    assert main(["analyze", str(path), "--out", str(tmp_path / "o")]) == 0
+    q = json.loads((tmp_path / "o" / "report.json").read_text())["data_quality"]["rejected"]
+    assert q == {"bad_shape": 1, "malformed_line": 2, "time_backwards": 1, "unknown_key": 1}
+
+
+def test_empty_recording(tmp_path: Path) -> None:
+    (tmp_path / "empty.jsonl").write_text("")
+    assert main(["analyze", str(tmp_path / "empty.jsonl"), "--out", str(tmp_path / "o")]) == 0
+    assert (tmp_path / "o" / "estimates.csv").read_text() == CSV_HEADER + "\n"
+    assert json.loads((tmp_path / "o" / "report.json").read_text())["cycles"] == []
+
+
+def test_missing_recording_is_a_clear_error(tmp_path: Path, capsys) -> None:
+    assert main(["analyze", str(tmp_path / "nope.jsonl"), "--out", str(tmp_path / "o")]) == 2
+    assert "no such recording" in capsys.readouterr().err
+
+
+def test_evaluate_prints_the_papers_tables(rec: Path, capsys) -> None:
+    main(["analyze", str(rec / "recording.jsonl.gz"), "--out", str(rec / "ev")])
+    capsys.readouterr()
+    assert (
+        main(
+            [
+                "evaluate",
+                str(rec / "ev"),
+                "--truth",
+                str(rec / "truth.npz"),
+                "--json",
+                str(rec / "ev.json"),
+            ]
+        )
+        == 0
+    )
+    out = capsys.readouterr().out
+    assert "| proper |" in out and "| compensatory |" in out and "heading converged" in out
+    res = json.loads((rec / "ev.json").read_text())
+    assert res["cycles"]["share_correct"] == 1.0
+    assert res["accuracy"]["compensatory"]["conv_shoulder_m"]["median"] > 0.05  # baseline fails
