@@ -34,61 +34,45 @@ DETAILS_HEADER = (
 STATE_NAMES = {-1: "", 0: "ok", 1: "outside", 2: "warning"}
 
 
-def _fmt(x: float, digits: int) -> str:
-    return "" if not math.isfinite(x) else f"{x:.{digits}f}"
+_EST_FMT = "%r,%.5f,%.5f,%.5f,%.5f,%.5f,%.5f,%.3f,%.3f,%d,%.5f,%s"
+_DET_FMT = (
+    "%r,%.6f,%.6f,%.6f,%.6f,%.3f,%.4f,%.3f,%.3f,%.5f,%.5f,%.5f,%.3f,%.5f,%.5f,%.5f,%.4f"
+)
+
+
+def _lines(fmt: str, cols: list[list[Any]]) -> list[str]:
+    # one C-level format per row; NaN becomes an empty cell ("nan" cannot occur otherwise)
+    return [(fmt % row).replace("nan", "") for row in zip(*cols, strict=True)]
 
 
 def estimate_lines(rows: dict[str, np.ndarray]) -> list[str]:
     """Rows of ``estimates.csv`` (contract §6); empty cells where no value exists yet."""
-    out: list[str] = []
-    t = rows["t"].tolist()
-    el = rows["elbow"].tolist()
-    sh = rows["shoulder"].tolist()
-    ang = rows["elbow_angle_deg"].tolist()
-    hdg = rows["heading_offset_deg"].tolist()
-    conv = rows["heading_converged"].tolist()
-    disp = rows["shoulder_displacement_m"].tolist()
-    st = rows["state"].tolist()
-    for i in range(len(t)):
-        out.append(
-            ",".join(
-                (
-                    repr(t[i]),
-                    _fmt(el[i][0], 5),
-                    _fmt(el[i][1], 5),
-                    _fmt(el[i][2], 5),
-                    _fmt(sh[i][0], 5),
-                    _fmt(sh[i][1], 5),
-                    _fmt(sh[i][2], 5),
-                    _fmt(ang[i], 3),
-                    _fmt(hdg[i], 3),
-                    "1" if conv[i] else "0",
-                    _fmt(disp[i], 5),
-                    STATE_NAMES[int(st[i])],
-                )
-            )
-        )
-    return out
+    el, sh = rows["elbow"], rows["shoulder"]
+    cols = [
+        rows["t"].tolist(),
+        *(el[:, j].tolist() for j in range(3)),
+        *(sh[:, j].tolist() for j in range(3)),
+        rows["elbow_angle_deg"].tolist(),
+        rows["heading_offset_deg"].tolist(),
+        rows["heading_converged"].astype(np.int64).tolist(),
+        rows["shoulder_displacement_m"].tolist(),
+        [STATE_NAMES[int(s)] for s in rows["state"].tolist()],
+    ]
+    return _lines(_EST_FMT, cols)
 
 
 def detail_lines(rows: dict[str, np.ndarray]) -> list[str]:
-    cols = [
-        rows["t"][:, None],
-        rows["q_ra"],
-        rows["heading_std_deg"][:, None],
-        rows["heading_confidence"][:, None],
-        rows["upper_arm_elevation_deg"][:, None],
-        rows["upper_arm_azimuth_deg"][:, None],
-        rows["nominal_shoulder"],
-        rows["conv_elbow_angle_deg"][:, None],
-        rows["wrist"],
-        rows["upper_arm_length_m"][:, None],
-    ]
-    m = np.concatenate(cols, axis=1).tolist()
-    digits = (6, 6, 6, 6, 6, 3, 4, 3, 3, 5, 5, 5, 3, 5, 5, 5, 4)
-    return [
-        ",".join(repr(r[0]) if j == 0 else _fmt(r[j], digits[j]) for j in range(len(r))) for r in m
-    ]
+    m = np.concatenate(
+        [
+            rows["t"][:, None], rows["q_ra"], rows["heading_std_deg"][:, None],
+            rows["heading_confidence"][:, None], rows["upper_arm_elevation_deg"][:, None],
+            rows["upper_arm_azimuth_deg"][:, None], rows["nominal_shoulder"],
+            rows["conv_elbow_angle_deg"][:, None], rows["wrist"],
+            rows["upper_arm_length_m"][:, None],
+        ],
+        axis=1,
+    )
+    return _lines(_DET_FMT, [m[:, j].tolist() for j in range(m.shape[1])])
 
 
 def estimate_payload(rows: dict[str, np.ndarray]) -> dict[str, list[Any]]:

@@ -26,7 +26,8 @@ def _interp(t: np.ndarray, tt: np.ndarray, x: np.ndarray) -> np.ndarray:
     return np.stack([np.interp(t, tt, x[:, j]) for j in range(x.shape[1])], axis=1)
 
 
-def _stats(e: np.ndarray) -> dict[str, float | int | None]:
+def stats(e: np.ndarray) -> dict[str, float | int | None]:
+    """Median and 95th percentile of the finite values."""
     e = e[np.isfinite(e)]
     if not len(e):
         return {"n": 0, "median": None, "p95": None}
@@ -74,14 +75,21 @@ def evaluate(analysis_dir: str | Path, truth: dict[str, Any]) -> dict[str, Any]:
     e_ang = np.abs(est["elbow_angle_deg"] - ang_true)
     e_sh_conv = np.linalg.norm(nominal - sh_true, axis=1)
     e_ang_conv = np.abs(det["conv_elbow_angle_deg"] - ang_true)
+    raw = {
+        "phase": phase[conv],
+        "shoulder_m": e_sh[conv],
+        "elbow_deg": e_ang[conv],
+        "conv_shoulder_m": e_sh_conv[conv],
+        "conv_elbow_deg": e_ang_conv[conv],
+    }
     acc: dict[str, Any] = {}
     for code, name in (*PHASES.items(), (0, "all")):
         m = conv & ((phase == code) if code else np.isin(phase, list(PHASES)))
         acc[name] = {
-            "shoulder_m": _stats(e_sh[m]),
-            "elbow_deg": _stats(e_ang[m]),
-            "conv_shoulder_m": _stats(e_sh_conv[m]),
-            "conv_elbow_deg": _stats(e_ang_conv[m]),
+            "shoulder_m": stats(e_sh[m]),
+            "elbow_deg": stats(e_ang[m]),
+            "conv_shoulder_m": stats(e_sh_conv[m]),
+            "conv_elbow_deg": stats(e_ang_conv[m]),
         }
     # cycle verdicts: each truth cycle of a pure phase against the overlapping estimate cycle
     confusion = {
@@ -97,6 +105,8 @@ def evaluate(analysis_dir: str | Path, truth: dict[str, Any]) -> dict[str, Any]:
     for c in truth_cycles(truth):
         if c["phase"] not in PHASES or conv_t is None or c["start"] < conv_t:
             continue
+        if c["end"] > t[-1] - (c["end"] - c["start"]):
+            continue  # our boundaries sit at another phase: this one ends after the recording
         label = PHASES[c["phase"]]
         overlap = np.minimum(e_est, c["end"]) - np.maximum(s_est, c["start"])
         j = int(np.argmax(overlap)) if len(overlap) else -1
@@ -126,6 +136,7 @@ def evaluate(analysis_dir: str | Path, truth: dict[str, Any]) -> dict[str, Any]:
             "convergence_s": (conv_t - t_motion) if conv_t is not None else None,
         },
         "upper_arm_length_m": report.get("upper_arm_length_m"),
+        "raw": raw,
     }
 
 
@@ -170,6 +181,7 @@ def cmd(args: argparse.Namespace) -> int:
     res = evaluate(args.analysis, load_truth(args.truth))
     print(format_tables(res))
     if args.json:
+        res.pop("raw")
         Path(args.json).write_text(json.dumps(res, indent=1))
     return 0
 

@@ -289,7 +289,8 @@ def _fit_with_sensor_errors(
     span = float(tau[-1] - tau[0]) if n > 1 else 0.0
     n_eff = max(1.0, span * params.effective_rate_hz)
     d0, rate, sd = 0.0, rate0, math.inf
-    for _ in range(params.sensor_fit_iterations):
+    # once converged the previous window's errors are a warm start: one alternation is enough
+    for _ in range(1 if state.converged else params.sensor_fit_iterations):
         ac = a + (jac @ x).reshape(n, 3)
         d0, rate, sd, _ = fit_drift(ac, b, tau, rate0, params, n_iter=3)
         # residual in frame I: Rz(−δ_k) b_k − a_k = jac_k x + noise
@@ -299,6 +300,15 @@ def _fit_with_sensor_errors(
         x = np.linalg.solve(jtj / var + np.diag(prior), (jac.T @ y) / var)
     state.acc_bias, state.lever_error = x[:3].copy(), x[3:].copy()
     return d0, rate, sd, a + (jac @ x).reshape(n, 3)
+
+
+def _delay(t: Array, x: Array, lag: float) -> Array:
+    """``x`` (n, c) sampled at ``t − lag`` by linear interpolation (held at the ends)."""
+    s = np.clip(t - lag, t[0], t[-1])
+    i1 = np.clip(np.searchsorted(t, s, side="left"), 1, len(t) - 1)
+    i0 = i1 - 1
+    w = ((s - t[i0]) / (t[i1] - t[i0]))[:, None]
+    return x[i0] + w * (x[i1] - x[i0])  # type: ignore[no-any-return]
 
 
 def _rotate_z(delta: Array, v: Array) -> Array:
@@ -342,9 +352,9 @@ def update_improved(
             state.lag_weight = min(state.lag_weight + weight, 50.0 * weight)
         if state.lag != 0.0:
             ts = w.t[v]
-            a = np.stack([np.interp(ts - state.lag, ts, a[:, j]) for j in range(3)], axis=1)
-            if cl is not None:
-                cl = np.stack([np.interp(ts - state.lag, ts, cl[:, j]) for j in range(18)], axis=1)
+            ac = np.concatenate((a, cl), axis=1) if cl is not None else a
+            ac = _delay(ts, ac, state.lag)
+            a, cl = ac[:, :3], (ac[:, 3:] if cl is not None else None)
     rate0 = state.rate if state.converged else 0.0
     if params.estimate_sensor_errors and cl is not None and np.any(cl):
         d0, rate, sd, a = _fit_with_sensor_errors(state, a, b, tau, cl, rate0, params)

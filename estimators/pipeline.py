@@ -207,9 +207,9 @@ class _ImuStage:
         self.t = np.empty(0)
         self.segid = np.empty(0, dtype=np.int64)
         self.q = np.empty((0, 4))  # q_IA (segment frame)
-        self.v = np.empty((0, 3))  # acceleration term used as is
-        self.u = np.empty((0, 3))  # position term differentiated after the low-pass
-        self.c = np.empty((0, 9))  # sensor axes x, y, z in frame I (for bias and lever fits)
+        self.q_is = np.empty((0, 4))  # the 6D filter's sensor orientation
+        self.acc = np.empty((0, 3))  # specific force, sensor frame
+        self.v = np.empty((0, 3))  # paper method: eq. 1–2 acceleration (sequential filter)
 
     def _reset(self) -> None:
         assert self.ts is not None
@@ -271,7 +271,6 @@ class _ImuStage:
         assert self.vqf is not None
         out = self.vqf.updateBatch(np.ascontiguousarray(gyr), np.ascontiguousarray(acc))
         q_is = np.asarray(out["quat6D"], dtype=np.float64)
-        v = kin.inertial_acceleration(q_is, acc)
         if self.p.method == "paper":
             assert self.gyro_lp is not None and self.ts is not None
             if self.gyro_zi is None or self.gyro_prev is None:
@@ -282,26 +281,21 @@ class _ImuStage:
             gdot = (gf - prev) / self.ts  # backward difference of the low-passed gyro (eq. 1)
             self.gyro_prev = gf[-1].copy()
             v = kin.inertial_acceleration(q_is, kin.joint_specific_force(acc, gyr, gdot, self.r))
-            u = np.zeros_like(v)
-            c = np.zeros((len(t), 9))
-        else:
-            u = quat.rotate(q_is, np.broadcast_to(self.r, v.shape))
-            c = np.concatenate(
-                [quat.rotate(q_is, np.broadcast_to(e, v.shape)) for e in np.eye(3)], axis=1
-            )
+            self.v = np.concatenate((self.v, v))
         self.t = np.concatenate((self.t, t))
         self.segid = np.concatenate((self.segid, np.full(len(t), self.seg)))
         self.q = np.concatenate((self.q, quat.mul(q_is, self.mount)))
-        self.v = np.concatenate((self.v, v))
-        self.u = np.concatenate((self.u, u))
-        self.c = np.concatenate((self.c, c))
+        self.q_is = np.concatenate((self.q_is, q_is))
+        self.acc = np.concatenate((self.acc, acc))
 
     def trim(self, t_keep: float) -> None:
         i = max(0, int(np.searchsorted(self.t, t_keep)) - 2)
         if i > 0:
             self.t, self.segid = self.t[i:], self.segid[i:]
-            self.q, self.v, self.u = self.q[i:], self.v[i:], self.u[i:]
-            self.c = self.c[i:]
+            self.q = self.q[i:]
+            if len(self.v):
+                self.v = self.v[i:]
+            self.q_is, self.acc = self.q_is[i:], self.acc[i:]
 
     def smooth(self, g: Array, half: float) -> tuple[Array, Array]:
         """Acceleration terms (v, u) at grid times ``g``, anti-aliased by a centred Hann
@@ -324,31 +318,52 @@ class _ImuStage:
             & (self.segid[lo] == self.segid[lo + m - 1])
             & (wsum > 0)
         )
-        x = np.concatenate((self.v, self.u, self.c), axis=1)[idx]  # (ng, m, 15)
+        base = int(lo.min())
+        x = self.channels(base, int(lo.max()) + m)[idx - base]  # (ng, m, 15)
         with np.errstate(invalid="ignore", divide="ignore"):
             out = np.einsum("gm,gmc->gc", w, x) / wsum[:, None]
         return ok, out
 
-    def interp(self, s: Array) -> tuple[Array, Array, Array, Array, Array]:
-        """Orientation and acceleration terms at times ``s``; ``ok`` where both neighbours
-        exist in one segment."""
+    def channels(self, lo: int, hi: int) -> Array:
+        """Fusion channels of samples ``lo:hi`` (n, 15): the acceleration term v (used as
+        is), the lever term u = q r q* (differentiated after the low-pass), and the sensor
+        axes in I (for the bias and lever fits). Computed only when the grid needs them."""
+        if self.p.method == "paper":
+            v = self.v[lo:hi]
+            return np.concatenate((v, np.zeros((len(v), 12))), axis=1)
+        c = quat.matrix_columns(self.q_is[lo:hi])
+        acc, r = self.acc[lo:hi], self.r
+        cx, cy, cz = c[:, 0:3], c[:, 3:6], c[:, 6:9]
+        v = cx * acc[:, 0:1] + cy * acc[:, 1:2] + cz * acc[:, 2:3] - kin.GRAVITY
+        u = cx * r[0] + cy * r[1] + cz * r[2]
+        return np.concatenate((v, u, c), axis=1)
+
+    def _bracket(self, s: Array) -> tuple[Array, Array, Array, Array]:
         n = len(self.t)
         i1 = np.searchsorted(self.t, s, side="left")
-        ok = (i1 > 0) & (i1 < n)
         i1c = np.clip(i1, 1, max(n - 1, 1))
         i0 = i1c - 1
-        exact = (i1 < n) & (self.t[np.minimum(i1, n - 1)] == s) if n else np.zeros(len(s), bool)
-        ok = (ok | exact) & (n > 1)
-        if n < 2:
-            z = np.full((len(s), 3), np.nan)
-            return ok, np.full((len(s), 4), np.nan), z, z.copy(), np.zeros(len(s), np.int64)
-        ok &= self.segid[i0] == self.segid[i1c]
-        w = (s - self.t[i0]) / (self.t[i1c] - self.t[i0])
-        w = np.clip(w, 0.0, 1.0)
-        qi = quat.nlerp(self.q[i0], self.q[i1c], w)
-        vi = self.v[i0] + w[:, None] * (self.v[i1c] - self.v[i0])
-        ui = self.u[i0] + w[:, None] * (self.u[i1c] - self.u[i0])
-        return ok, qi, vi, ui, self.segid[i1c]
+        ok = (i1 > 0) & (i1 < n) & (self.segid[i0] == self.segid[i1c])
+        w = np.clip((s - self.t[i0]) / (self.t[i1c] - self.t[i0]), 0.0, 1.0)
+        return ok, i0, i1c, w
+
+    def interp(self, s: Array) -> tuple[Array, Array, Array]:
+        """Orientation q_IA at times ``s`` (nlerp); ``ok`` where both neighbours exist in
+        one segment; also the segment ids."""
+        if len(self.t) < 2:
+            return np.zeros(len(s), bool), np.full((len(s), 4), np.nan), np.zeros(len(s), np.int64)
+        ok, i0, i1, w = self._bracket(s)
+        return ok, quat.nlerp(self.q[i0], self.q[i1], w), self.segid[i1]
+
+    def interp_channels(self, s: Array) -> tuple[Array, Array]:
+        """Fusion channels linearly interpolated at ``s`` (no anti-alias: the paper's way)."""
+        if len(self.t) < 2:
+            return np.zeros(len(s), bool), np.full((len(s), 15), np.nan)
+        ok, i0, i1, w = self._bracket(s)
+        base = int(i0.min()) if len(i0) else 0
+        x = self.channels(base, int(i1.max()) + 1 if len(i1) else 0)
+        x0, x1 = x[i0 - base], x[i1 - base]
+        return ok, x0 + w[:, None] * (x1 - x0)
 
 
 # ------------------------------------------------------------------------------ stage 2: robot
@@ -453,8 +468,7 @@ class _GridStage:
         if self.half > 0:
             ok_i, vu = imu.smooth(g, self.half)
         else:
-            ok_i, _, v, u, _ = imu.interp(g)
-            vu = np.concatenate((v, u, np.zeros((len(g), 9))), axis=1)
+            ok_i, vu = imu.interp_channels(g)
         segs = imu.segid[np.clip(np.searchsorted(imu.t, g), 0, len(imu.t) - 1)]
         ok_r, p = robot.interp(g)
         ok = ok_i & ok_r
@@ -771,7 +785,10 @@ class Pipeline:
             self._robot.append(np.concatenate([c[0] for c in pend_r]) - off, p_e, self.quality)
         # fusion grid as far as both streams reach (stamps fed so far)
         until = min(self._imu_frontier - self._grid.half, self._robot_frontier - off)
-        if self._imu.ts is not None:
+        # The grid only feeds heading updates: advance it (in one vectorised chunk, with the
+        # same numbers as sample by sample) when the next update falls due.
+        due = self._t_update is None or until >= self._t_update
+        if self._imu.ts is not None and due:
             self._grid.advance(self._imu, self._robot, until)
         self._run_heading()
         out = self._rows()
@@ -862,9 +879,10 @@ class Pipeline:
         # pair the robot sample with the IMU at the same physical instant (estimated latency;
         # a robot ahead of the IMU is not corrected, the IMU sample would not be here yet)
         latency = np.where(np.isfinite(sn[:, 7]), np.maximum(sn[:, 7], 0.0), 0.0)
-        ok, q_pair, _, _, seg = self._imu.interp(s - latency)
-        ok_now, q_now, _, _, seg_now = self._imu.interp(s)
-        ok &= with_imu & ok_now & (seg_now == seg)
+        ok2, q2, seg2 = self._imu.interp(np.concatenate((s - latency, s)))
+        ok, q_pair, seg = ok2[:n], q2[:n], seg2[:n]
+        q_now = q2[n:]
+        ok &= with_imu & ok2[n:] & (seg2[n:] == seg)
         use = ok & np.isfinite(sn[:, 1]) & (sn[:, 6] == seg)
         since = np.maximum(0.0, s - sn[:, 3])
         with np.errstate(invalid="ignore"):
@@ -872,13 +890,12 @@ class Pipeline:
             std = np.where(use, np.hypot(sn[:, 4], math.radians(0.1) * since), np.inf)
         conv = use & (sn[:, 5] > 0)
         good = ok & conv & np.isfinite(delta)
-        rz = quat.about_z(delta[good])
         q_ra = np.full((n, 4), np.nan)  # the upper arm now (eqs. 9–10)
-        q_ra[good] = quat.mul(rz, q_now[good])
-        q_pr = np.full((n, 4), np.nan)  # ... and when the robot measured the elbow
-        q_pr[good] = quat.mul(rz, q_pair[good])
-        x_a = quat.rotate(q_pr, np.broadcast_to(EX, (n, 3)))
-        x_now = quat.rotate(q_ra, np.broadcast_to(EX, (n, 3)))
+        q_ra[good] = quat.mul(quat.about_z(delta[good]), q_now[good])
+        x_now = quat.x_axis(q_ra)
+        # ... and its axis when the robot measured the elbow: Rz(δ) q_IA e_x
+        x_a = np.full((n, 3), np.nan)
+        x_a[good] = quat.rotate_z(delta[good], quat.x_axis(q_pair[good]))
         angle = self._elbow_angle(t, x_now, x_a, x_c, latency)
         la = self._arm_lengths(t, p_e, spec)
         shoulder = kin.shoulder_position(p_e, x_a, la)

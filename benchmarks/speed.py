@@ -1,0 +1,94 @@
+"""Speed: `rehab analyze` of an 8-minute session, streaming cost, one heading update.
+
+Pinned to one core; interpreter start and imports excluded (the figures are for work done).
+
+    python benchmarks/speed.py [--seed 1] [--duration 480] [--repeat 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import platform
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from backend import recording, wire
+from backend.analysis import analyze
+from estimators import heading as hd
+from estimators.params import PipelineParams
+from estimators.pipeline import Pipeline
+from simulator import SimConfig, simulate
+
+
+def best(fn, repeat: int) -> float:
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return min(times)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--duration", type=float, default=480.0)
+    ap.add_argument("--repeat", type=int, default=5)
+    args = ap.parse_args(argv)
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
+    sim = simulate(SimConfig(seed=args.seed, duration_s=args.duration))
+    n_imu = sum(len(p["t"]) for k, p in sim.messages if "/imu/" in k)
+    with tempfile.TemporaryDirectory() as tmp:
+        rec = Path(tmp) / "recording.jsonl.gz"
+        recording.write(rec, sim.messages)
+        out = Path(tmp) / "out"
+        for name, params in (("improved", PipelineParams()), ("paper", PipelineParams(method="paper"))):
+            t = best(lambda p=params: analyze(rec, p, out), args.repeat)
+            print(f"analyze ({name}): {t:.3f} s for {args.duration:.0f} s of data "
+                  f"({len(sim.messages)} messages) = {args.duration / t:.0f}x real time")
+    msgs = [wire.decode(k, p) for k, p in sim.messages]
+
+    def live() -> None:
+        p = Pipeline(PipelineParams())
+        for m in msgs:
+            p.feed(m)
+            if isinstance(m, wire.RobotMessage):
+                p.poll()
+        p.finish()
+
+    t = best(live, max(1, args.repeat // 2))
+    print(f"streaming (poll after every robot message): {1e6 * t / n_imu:.1f} µs per IMU sample "
+          f"({n_imu} samples)")
+    # one heading update on a full window, taken from a real run
+    p = Pipeline(PipelineParams())
+    p.run(msgs[: len(msgs) // 4])
+    g = p._grid
+    t_end = float(g.t[-1])
+    for name, hp, span in (("improved", hd.HeadingParams(), 40.0), ("paper", hd.HeadingParams.paper(), 20.0)):
+        w = g.window(t_end, span, int(g.seg[-1]))
+        times = []
+        for _ in range(50):
+            s = hd.HeadingState(converged=True, delta=0.0, n_counted=10)
+            t0 = time.perf_counter()
+            if name == "paper":
+                hd.update_paper(s, w, hp, t_end)
+            else:
+                hd.update_improved(s, w, hp, t_end, g.lag)
+            times.append(time.perf_counter() - t0)
+        print(f"heading update ({name}, {len(w.t)} samples): median {1e3 * statistics.median(times):.2f} ms, "
+              f"max {1e3 * max(times):.2f} ms")
+    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+          f"Python {platform.python_version()}, numpy {np.__version__}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,348 @@
+// The live feed: one WebSocket (/api/ws/live or /api/ws/overlay), per-device stores with the
+// last seconds of estimates, and frame-coalesced notifications (at most one per animation
+// frame, however many messages arrived).
+
+import type {
+  CycleMsg,
+  EstimateRows,
+  IndicatorState,
+  LiveMsg,
+  Num,
+  StatusMsg,
+} from "./types";
+
+export const WINDOW_S = 30;
+
+export interface Latest {
+  t: number | null;
+  disp: Num;
+  elbow: Num;
+  elev: Num;
+  azim: Num;
+  dx: Num;
+  dy: Num;
+  wristX: Num;
+  wristY: Num;
+  converged: boolean;
+  state: IndicatorState | null;
+  confidence: Num;
+}
+
+export interface Series {
+  t: number[];
+  disp: Num[]; // cm
+  elbow: Num[];
+  elev: Num[];
+}
+
+const emptyLatest = (): Latest => ({
+  t: null,
+  disp: null,
+  elbow: null,
+  elev: null,
+  azim: null,
+  dx: null,
+  dy: null,
+  wristX: null,
+  wristY: null,
+  converged: false,
+  state: null,
+  confidence: null,
+});
+
+function lastFinite(a: Num[] | undefined): Num {
+  if (!a) return null;
+  for (let i = a.length - 1; i >= 0; i--) {
+    const v = a[i];
+    if (v !== null && v !== undefined && Number.isFinite(v)) return v;
+  }
+  return null;
+}
+
+function at<T>(a: T[] | undefined, i: number): T | null {
+  if (!a) return null;
+  const v = a[i];
+  return v === undefined ? null : v;
+}
+
+export class DeviceLive {
+  status: StatusMsg | null = null;
+  latest: Latest = emptyLatest();
+  series: Series = { t: [], disp: [], elbow: [], elev: [] };
+  cycles: CycleMsg[] = [];
+  /** Sample time when the current state began (for "outside for 2.3 s"). */
+  stateSince: number | null = null;
+  /** Recent hand (wrist cuff) positions, robot frame, metres: the overlay's game input. */
+  hand: { x: number[]; y: number[] } = { x: [], y: [] };
+  version = 0;
+  estimates = 0;
+
+  constructor(readonly name: string) {}
+
+  get online(): boolean {
+    return this.status?.online ?? false;
+  }
+
+  /** Forget the plots and cycles (a new session begins). */
+  reset(): void {
+    this.series = { t: [], disp: [], elbow: [], elev: [] };
+    this.cycles = [];
+    this.latest = emptyLatest();
+    this.stateSince = null;
+    this.version++;
+  }
+
+  applyStatus(m: StatusMsg): void {
+    const prev = this.status;
+    if (prev && prev.session_id !== m.session_id) {
+      this.cycles = [];
+    }
+    this.status = m;
+    this.latest.converged = m.heading_converged;
+    this.version++;
+  }
+
+  applyState(state: IndicatorState, t: number): void {
+    if (state !== this.latest.state) this.stateSince = t;
+    this.latest.state = state;
+    this.version++;
+  }
+
+  applyCycle(m: CycleMsg): void {
+    const idx = m.index ?? (this.cycles.at(-1)?.index ?? 0) + 1;
+    if (this.cycles.some((c) => c.index === idx)) return;
+    this.cycles.push({ ...m, index: idx });
+    if (this.cycles.length > 1000) this.cycles.splice(0, this.cycles.length - 1000);
+    this.version++;
+  }
+
+  applyRows(r: EstimateRows): void {
+    const n = r.t?.length ?? 0;
+    if (!n) return;
+    const s = this.series;
+    const t0 = r.t[0]!;
+    const lastT = s.t.at(-1);
+    if (lastT !== undefined && t0 < lastT - 1) {
+      // The device's clock went back: a new recording. Start the plots afresh.
+      this.series = { t: [], disp: [], elbow: [], elev: [] };
+    }
+    const S = this.series;
+    for (let i = 0; i < n; i++) {
+      const t = r.t[i]!;
+      if (S.t.length && t <= S.t[S.t.length - 1]!) continue;
+      S.t.push(t);
+      const d = at(r.shoulder_displacement_m, i);
+      S.disp.push(d === null ? null : d * 100);
+      S.elbow.push(at(r.elbow_angle_deg, i));
+      S.elev.push(at(r.upper_arm_elevation_deg, i));
+      const st = at(r.state, i);
+      if (st && st !== this.latest.state) {
+        this.stateSince = t;
+        this.latest.state = st;
+      } else if (st === null && r.state) {
+        this.latest.state = null;
+        this.stateSince = null;
+      }
+    }
+    // Trim to the window (amortised: only once it is well over).
+    const tEnd = S.t[S.t.length - 1]!;
+    if (S.t.length > 64 && S.t[0]! < tEnd - WINDOW_S * 1.25) {
+      let k = 0;
+      while (k < S.t.length && S.t[k]! < tEnd - WINDOW_S) k++;
+      S.t.splice(0, k);
+      S.disp.splice(0, k);
+      S.elbow.splice(0, k);
+      S.elev.splice(0, k);
+    }
+    const L = this.latest;
+    const i = n - 1;
+    L.t = r.t[i]!;
+    L.disp = at(r.shoulder_displacement_m, i);
+    L.elbow = at(r.elbow_angle_deg, i);
+    L.elev = at(r.upper_arm_elevation_deg, i);
+    L.azim = at(r.upper_arm_azimuth_deg, i);
+    L.confidence = at(r.heading_confidence, i);
+    const conv = at(r.heading_converged, i);
+    if (conv !== null) L.converged = conv === 1;
+    let dx = at(r.dx, i);
+    let dy = at(r.dy, i);
+    if (dx === null || dy === null) {
+      const sx = at(r.shoulder_x, i);
+      const sy = at(r.shoulder_y, i);
+      const nx = at(r.nominal_x, i);
+      const ny = at(r.nominal_y, i);
+      if (sx !== null && sy !== null && nx !== null && ny !== null) {
+        dx = sx - nx;
+        dy = sy - ny;
+      }
+    }
+    L.dx = dx;
+    L.dy = dy;
+    L.wristX = lastFinite(r.wrist_x);
+    L.wristY = lastFinite(r.wrist_y);
+    if (r.wrist_x && r.wrist_y) {
+      const H = this.hand;
+      for (let k = 0; k < n; k++) {
+        const x = r.wrist_x[k];
+        const y = r.wrist_y[k];
+        if (x === null || y === null || x === undefined || y === undefined) continue;
+        H.x.push(x);
+        H.y.push(y);
+      }
+      if (H.x.length > 4000) {
+        H.x.splice(0, H.x.length - 3000);
+        H.y.splice(0, H.y.length - 3000);
+      }
+    }
+    this.estimates++;
+    this.version++;
+  }
+}
+
+export type Connection = "connecting" | "open" | "closed" | "denied";
+
+type Listener = () => void;
+
+/** Counters the UI tests and the benchmark read (window.__rehabLive). */
+export interface LiveStats {
+  messages: number;
+  estimates: Record<string, number>;
+  frames: Record<string, number>;
+}
+
+declare global {
+  interface Window {
+    __rehabLive?: LiveStats;
+  }
+}
+
+export class LiveClient {
+  readonly devices = new Map<string, DeviceLive>();
+  known: string[] = [];
+  connection: Connection = "connecting";
+  private ws: WebSocket | null = null;
+  private listeners = new Set<Listener>();
+  private scheduled = false;
+  private backoff = 500;
+  private timer: number | undefined;
+  private closed = false;
+  readonly stats: LiveStats = { messages: 0, estimates: {}, frames: {} };
+
+  /**
+   * @param path e.g. "/api/ws/live?devices=a,b" or "/api/ws/overlay?token=..."
+   * @param defaultDevice device name for messages without one (the overlay feed)
+   */
+  constructor(
+    private readonly path: string,
+    private readonly defaultDevice = "",
+    private readonly onDenied?: () => void,
+  ) {
+    window.__rehabLive = this.stats;
+    this.connect();
+  }
+
+  device(name: string): DeviceLive {
+    let d = this.devices.get(name);
+    if (!d) {
+      d = new DeviceLive(name);
+      this.devices.set(name, d);
+    }
+    return d;
+  }
+
+  subscribe(fn: Listener): () => void {
+    this.listeners.add(fn);
+    return () => this.listeners.delete(fn);
+  }
+
+  /** Count a rendered frame for a device (the update-rate figure). */
+  frameRendered(device: string): void {
+    this.stats.frames[device] = (this.stats.frames[device] ?? 0) + 1;
+  }
+
+  close(): void {
+    this.closed = true;
+    window.clearTimeout(this.timer);
+    this.ws?.close(1000);
+    this.listeners.clear();
+  }
+
+  private connect(): void {
+    if (this.closed) return;
+    const proto = location.protocol === "https:" ? "wss:" : "ws:";
+    const ws = new WebSocket(`${proto}//${location.host}${this.path}`);
+    this.ws = ws;
+    this.connection = "connecting";
+    ws.onopen = () => {
+      this.connection = "open";
+      this.backoff = 500;
+      this.changed();
+    };
+    ws.onmessage = (ev: MessageEvent<string>) => {
+      let msg: LiveMsg;
+      try {
+        msg = JSON.parse(ev.data) as LiveMsg;
+      } catch {
+        return;
+      }
+      this.handle(msg);
+    };
+    ws.onclose = (ev) => {
+      this.ws = null;
+      if (this.closed) return;
+      if (ev.code === 1008) {
+        this.connection = "denied";
+        this.changed();
+        this.onDenied?.();
+        return;
+      }
+      this.connection = "closed";
+      this.changed();
+      this.timer = window.setTimeout(() => this.connect(), this.backoff);
+      this.backoff = Math.min(this.backoff * 2, 5000);
+    };
+    ws.onerror = () => {
+      /* onclose follows and schedules the reconnect */
+    };
+  }
+
+  private handle(msg: LiveMsg): void {
+    this.stats.messages++;
+    switch (msg.type) {
+      case "hello":
+        this.known = [...(msg.devices ?? [])].sort();
+        for (const d of this.known) this.device(d);
+        break;
+      case "status": {
+        const d = this.device(msg.device || this.defaultDevice);
+        d.applyStatus(msg);
+        if (!this.known.includes(d.name)) this.known = [...this.known, d.name].sort();
+        break;
+      }
+      case "estimate": {
+        const name = msg.device || this.defaultDevice;
+        this.device(name).applyRows(msg.rows);
+        this.stats.estimates[name] = (this.stats.estimates[name] ?? 0) + 1;
+        break;
+      }
+      case "state":
+        this.device(msg.device || this.defaultDevice).applyState(msg.state, msg.t);
+        break;
+      case "cycle":
+        this.device(msg.device || this.defaultDevice).applyCycle(msg);
+        break;
+      default:
+        return;
+    }
+    this.changed();
+  }
+
+  private changed(): void {
+    if (this.scheduled) return;
+    this.scheduled = true;
+    requestAnimationFrame(() => {
+      this.scheduled = false;
+      this.listeners.forEach((fn) => fn());
+    });
+  }
+}

@@ -1,0 +1,239 @@
+import { useEffect, useMemo, useState } from "preact/hooks";
+import type { AlignedData } from "uplot";
+
+import { Alert, KeyFigure } from "../components/bits";
+import { PatientForm } from "../components/PatientForm";
+import { StaticChart } from "../components/StaticChart";
+import { api, errorText } from "../lib/api";
+import { dateTime, deg, duration, pct, shortDate } from "../lib/format";
+import { LINE, type ChartSpec } from "../lib/plots";
+import { complete, figuresOf, type SessionFigures } from "../lib/summary";
+import type { Device, Patient, Report, Session } from "../lib/types";
+
+const STATUS_TEXT: Record<Session["status"], string> = {
+  active: "● Running",
+  stopped: "Finished",
+  interrupted: "⚠ Interrupted",
+};
+
+function Trends({ sessions, figures }: { sessions: Session[]; figures: Map<number, SessionFigures> }) {
+  const done = sessions.filter((s) => figures.has(s.id)).reverse(); // oldest first
+  const labels = done.map((s) => shortDate(s.started_at));
+  const xs = done.map((_, i) => i);
+  const col = (k: keyof SessionFigures, scale = 1) =>
+    done.map((s) => {
+      const v = figures.get(s.id)?.[k];
+      return v === null || v === undefined ? null : v * scale;
+    });
+  const specs = useMemo(() => {
+    const base = { x: "sessions" as const, xLabels: () => labels, height: 200 };
+    const share: ChartSpec = { ...base, title: "Compensatory cycles", yLabel: "%", yRange: [0, 100], series: [{ label: "Compensatory cycles", color: LINE.comp, points: true }] };
+    const elbow: ChartSpec = { ...base, title: "Elbow range", yLabel: "°", yMin: 0, series: [{ label: "Elbow flexion range", color: LINE.elbow, points: true }] };
+    const shoulder: ChartSpec = {
+      ...base,
+      title: "Shoulder range",
+      yLabel: "°",
+      yMin: 0,
+      series: [
+        { label: "Elevation range", color: LINE.elev, points: true },
+        { label: "Horizontal (azimuth) range", color: LINE.azim, points: true, dash: [6, 3] },
+      ],
+    };
+    return { share, elbow, shoulder };
+  }, [labels.join("|")]);
+  const data = useMemo(
+    () => ({
+      share: [xs, col("compShare", 100)] as AlignedData,
+      elbow: [xs, col("elbowRange")] as AlignedData,
+      shoulder: [xs, col("elevRange"), col("azimRange")] as AlignedData,
+    }),
+    [done.length, figures],
+  );
+  if (done.length === 0) {
+    return <p class="empty">Trends appear after the first finished session.</p>;
+  }
+  return (
+    <div class="plots plots--3">
+      <StaticChart name="trend-compensatory" caption="Compensatory-cycle share per session (%)" spec={specs.share} data={data.share} />
+      <StaticChart name="trend-elbow" caption="Elbow range of motion per session (°)" spec={specs.elbow} data={data.elbow} />
+      <StaticChart name="trend-shoulder" caption="Shoulder (upper-arm) range of motion per session (°)" spec={specs.shoulder} data={data.shoulder} />
+    </div>
+  );
+}
+
+export function PatientPage({ id }: { id: number }) {
+  const [patient, setPatient] = useState<Patient | null>(null);
+  const [sessions, setSessions] = useState<Session[] | null>(null);
+  const [figures, setFigures] = useState<Map<number, SessionFigures>>(new Map());
+  const [devices, setDevices] = useState<Device[]>([]);
+  const [device, setDevice] = useState("");
+  const [editing, setEditing] = useState(false);
+  const [error, setError] = useState<string | null>(null);
+
+  useEffect(() => {
+    let alive = true;
+    api.get<Patient>(`/api/patients/${id}`).then((p) => alive && setPatient(p)).catch((e) => setError(errorText(e)));
+    api
+      .get<Device[]>("/api/devices")
+      .then((d) => {
+        if (!alive) return;
+        setDevices(d);
+        const free = d.find((x) => x.status === "online" && !x.active_session_id);
+        if (free) setDevice(free.name);
+      })
+      .catch(() => undefined);
+    api
+      .get<Session[]>(`/api/sessions?patient_id=${id}&limit=200`)
+      .then(async (list) => {
+        if (!alive) return;
+        setSessions(list);
+        const figs = new Map<number, SessionFigures>();
+        const missing: Session[] = [];
+        for (const s of list) {
+          if (s.status === "active") continue;
+          const f = figuresOf(s.summary);
+          if (complete(f)) figs.set(s.id, f!);
+          else missing.push(s);
+        }
+        setFigures(new Map(figs));
+        // Older sessions without a stored summary: read their reports (newest 30).
+        for (const s of missing.slice(0, 30)) {
+          try {
+            const f = figuresOf(await api.get<Report>(`/api/sessions/${s.id}/report`));
+            if (f) figs.set(s.id, f);
+          } catch {
+            /* a session without data has no report */
+          }
+          if (!alive) return;
+          setFigures(new Map(figs));
+        }
+      })
+      .catch((e) => setError(errorText(e)));
+    return () => {
+      alive = false;
+    };
+  }, [id]);
+
+  if (error) return <Alert kind="error">{error}</Alert>;
+  if (!patient) return <p role="status">Loading…</p>;
+
+  const finished = (sessions ?? []).filter((s) => figures.has(s.id));
+  const last = finished[0] ? figures.get(finished[0].id) : undefined;
+  const running = (sessions ?? []).find((s) => s.status === "active");
+
+  return (
+    <section class="page" aria-labelledby="patient-title">
+      <div class="page__head">
+        <h1 id="patient-title">Patient {patient.code}</h1>
+        <span class="muted">
+          {patient.affected_side === "left" ? "Left" : "Right"} arm affected · tolerance {Math.round(patient.tolerance_m * 100)} cm · warning after{" "}
+          {patient.warning_after_s} s
+        </span>
+        <button type="button" class="btn btn--ghost" aria-expanded={editing} onClick={() => setEditing(!editing)}>
+          {editing ? "Close" : "Edit"}
+        </button>
+      </div>
+      {editing && (
+        <section class="card" aria-label="Edit patient">
+          <PatientForm
+            patient={patient}
+            onSaved={(p) => {
+              setPatient(p);
+              setEditing(false);
+            }}
+            onCancel={() => setEditing(false)}
+          />
+        </section>
+      )}
+
+      <section class="card session-bar" aria-labelledby="start-title">
+        <h2 id="start-title">Therapy session</h2>
+        {running ? (
+          <p>
+            A session is running on <a href={`/devices/${running.device}`}>{running.device}</a>.
+          </p>
+        ) : (
+          <div class="session-bar__row">
+            <label class="field field--inline">
+              <span>Device</span>
+              <select value={device} onChange={(e) => setDevice(e.currentTarget.value)}>
+                <option value="">Choose a device…</option>
+                {devices.map((d) => (
+                  <option key={d.name} value={d.name} disabled={!!d.active_session_id}>
+                    {d.name} · {d.status === "online" ? "online" : "offline"}
+                    {d.active_session_id ? " · busy" : ""}
+                  </option>
+                ))}
+              </select>
+            </label>
+            <a class={`btn btn--primary${device ? "" : " btn--disabled"}`} aria-disabled={!device} href={device ? `/devices/${device}?patient=${patient.id}` : undefined}>
+              Go to the device
+            </a>
+          </div>
+        )}
+      </section>
+
+      {last && (
+        <div class="figures figures--row" aria-label="Last session">
+          <KeyFigure label="Compensatory cycles, last session" value={pct(last.compShare)} hint={`${last.compensatory ?? "–"} of ${last.cycles ?? "–"} cycles`} />
+          <KeyFigure label="Elbow range, last session" value={deg(last.elbowRange)} />
+          <KeyFigure label="Shoulder elevation range, last session" value={deg(last.elevRange)} />
+        </div>
+      )}
+
+      <section class="card" aria-labelledby="trends-title">
+        <h2 id="trends-title">Trends across sessions</h2>
+        {sessions === null ? <p role="status">Loading…</p> : <Trends sessions={sessions} figures={figures} />}
+      </section>
+
+      <section class="card" aria-labelledby="sessions-title">
+        <h2 id="sessions-title">Sessions</h2>
+        {sessions && sessions.length === 0 && <p class="empty">No sessions yet.</p>}
+        {sessions && sessions.length > 0 && (
+          <div class="table-wrap">
+            <table class="table">
+              <caption class="sr-only">Sessions of patient {patient.code}, newest first</caption>
+              <thead>
+                <tr>
+                  <th scope="col">Started</th>
+                  <th scope="col">Duration</th>
+                  <th scope="col">Device</th>
+                  <th scope="col">Status</th>
+                  <th scope="col">Cycles</th>
+                  <th scope="col">Compensatory</th>
+                  <th scope="col">Elbow range</th>
+                  <th scope="col">
+                    <span class="sr-only">Report</span>
+                  </th>
+                </tr>
+              </thead>
+              <tbody>
+                {sessions.map((s) => {
+                  const f = figures.get(s.id);
+                  return (
+                    <tr key={s.id}>
+                      <td>{dateTime(s.started_at)}</td>
+                      <td>{duration(s.started_at, s.stopped_at)}</td>
+                      <td>{s.device}</td>
+                      <td>{STATUS_TEXT[s.status]}</td>
+                      <td>{f?.cycles ?? "–"}</td>
+                      <td>{pct(f?.compShare)}</td>
+                      <td>{deg(f?.elbowRange)}</td>
+                      <td>
+                        {s.status === "active" ? (
+                          <a href={`/devices/${s.device}`}>Live view</a>
+                        ) : (
+                          <a href={`/sessions/${s.id}`}>Report</a>
+                        )}
+                      </td>
+                    </tr>
+                  );
+                })}
+              </tbody>
+            </table>
+          </div>
+        )}
+      </section>
+    </section>
+  );
+}
