@@ -57,12 +57,9 @@ def main(argv: list[str] | None = None) -> int:
     a.add_argument("--device", help="device to analyse when the recording has several")
     a.set_defaults(func=cmd_analyze)
 
-    try:
-        from simulator import cli as sim_cli
-    except ImportError:  # pragma: no cover - simulator is part of the package
-        sim_cli = None
-    if sim_cli is not None and hasattr(sim_cli, "add_parser"):
-        sim_cli.add_parser(sub)
+    from simulator import cli as sim_cli
+
+    sim_cli.add_parser(sub)
 
     from backend import evaluate
 

@@ -22,7 +22,7 @@ PHASES = {1: "proper", 3: "compensatory"}
 
 def _interp(t: np.ndarray, tt: np.ndarray, x: np.ndarray) -> np.ndarray:
     if x.ndim == 1:
-        return np.interp(t, tt, x)
+        return np.asarray(np.interp(t, tt, x))
     return np.stack([np.interp(t, tt, x[:, j]) for j in range(x.shape[1])], axis=1)
 
 

@@ -53,7 +53,7 @@ def read(path: str | Path) -> Iterator[Line]:
             yield obj.key, obj.payload
 
 
-def _lines(fh: IO[bytes]) -> Iterator[bytes]:
+def _lines(fh: Iterable[bytes]) -> Iterator[bytes]:
     """Lines of a file that may end mid-write (a killed recorder): a truncated gzip stream
     or a last line without its newline is where the recording stops, not an error."""
     try:

@@ -69,6 +69,11 @@ class Settings(BaseSettings):
     ws_max_rate_hz: float = Field(default=30.0, gt=0)
     device_offline_after_s: float = Field(default=5.0, gt=0)
 
+    # 3D view (viser, backend/viz.py): its own HTTP/WebSocket port, started on first use.
+    viser_enabled: bool = True
+    viser_host: str | None = Field(default=None, description="Default: the API's host.")
+    viser_port: int = Field(default=0, ge=0, le=65535, description="0 = any free port.")
+
     @field_validator("database_url")
     @classmethod
     def _async_driver(cls, url: str | None) -> str | None:

@@ -165,7 +165,7 @@ def _structured(kind: str, payload: bytes | str | dict[str, Any]) -> Any:
         raise WireError(_reason(str(exc)), str(exc)[:200]) from None
     except msgspec.DecodeError as exc:
         text = str(exc)
-        raw = payload.encode("utf-8", "replace") if isinstance(payload, str) else bytes(payload)
+        raw = payload.encode("utf-8", "replace") if isinstance(payload, str) else bytes(payload)  # type: ignore[arg-type]
         if b"NaN" in raw or b"Infinity" in raw or "inf" in text.lower():
             raise WireError("non_finite", "NaN or Infinity in payload") from None
         raise WireError("malformed_json", text[:200]) from None

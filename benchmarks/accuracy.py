@@ -55,8 +55,10 @@ def pooled(results: list[dict[str, Any]], method: str) -> dict[str, Any]:
     res: dict[str, Any] = {}
     for code, name in ((1, "proper"), (3, "compensatory"), (0, "all")):
         m = (phase == code) if code else np.isin(phase, (1, 3))
-        res[name] = {k: stats(np.concatenate([x[k] for x in raw])[m]) for k in
-                     ("shoulder_m", "elbow_deg", "conv_shoulder_m", "conv_elbow_deg")}
+        res[name] = {
+            k: stats(np.concatenate([x[k] for x in raw])[m])
+            for k in ("shoulder_m", "elbow_deg", "conv_shoulder_m", "conv_elbow_deg")
+        }
     conf = [r[method]["cycles"]["confusion"] for r in results]
     res["confusion"] = {k: sum(c[k] for c in conf) for k in conf[0]}
     conv = [r[method]["heading"]["convergence_s"] for r in results]
@@ -106,7 +108,9 @@ def markdown(results: list[dict[str, Any]]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5])
     ap.add_argument("--duration", type=float, default=480.0)
     ap.add_argument("--json", type=Path)

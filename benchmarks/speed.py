@@ -8,7 +8,6 @@ Pinned to one core; interpreter start and imports excluded (the figures are for 
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import platform
 import statistics
@@ -37,7 +36,9 @@ def best(fn, repeat: int) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--duration", type=float, default=480.0)
     ap.add_argument("--repeat", type=int, default=5)
@@ -50,10 +51,15 @@ def main(argv: list[str] | None = None) -> int:
         rec = Path(tmp) / "recording.jsonl.gz"
         recording.write(rec, sim.messages)
         out = Path(tmp) / "out"
-        for name, params in (("improved", PipelineParams()), ("paper", PipelineParams(method="paper"))):
+        for name, params in (
+            ("improved", PipelineParams()),
+            ("paper", PipelineParams(method="paper")),
+        ):
             t = best(lambda p=params: analyze(rec, p, out), args.repeat)
-            print(f"analyze ({name}): {t:.3f} s for {args.duration:.0f} s of data "
-                  f"({len(sim.messages)} messages) = {args.duration / t:.0f}x real time")
+            print(
+                f"analyze ({name}): {t:.3f} s for {args.duration:.0f} s of data "
+                f"({len(sim.messages)} messages) = {args.duration / t:.0f}x real time"
+            )
     msgs = [wire.decode(k, p) for k, p in sim.messages]
 
     def live() -> None:
@@ -65,14 +71,19 @@ def main(argv: list[str] | None = None) -> int:
         p.finish()
 
     t = best(live, max(1, args.repeat // 2))
-    print(f"streaming (poll after every robot message): {1e6 * t / n_imu:.1f} µs per IMU sample "
-          f"({n_imu} samples)")
+    print(
+        f"streaming (poll after every robot message): {1e6 * t / n_imu:.1f} µs per IMU sample "
+        f"({n_imu} samples)"
+    )
     # one heading update on a full window, taken from a real run
     p = Pipeline(PipelineParams())
     p.run(msgs[: len(msgs) // 4])
     g = p._grid
     t_end = float(g.t[-1])
-    for name, hp, span in (("improved", hd.HeadingParams(), 40.0), ("paper", hd.HeadingParams.paper(), 20.0)):
+    for name, hp, span in (
+        ("improved", hd.HeadingParams(), 40.0),
+        ("paper", hd.HeadingParams.paper(), 20.0),
+    ):
         w = g.window(t_end, span, int(g.seg[-1]))
         times = []
         for _ in range(50):
@@ -83,10 +94,14 @@ def main(argv: list[str] | None = None) -> int:
             else:
                 hd.update_improved(s, w, hp, t_end, g.lag)
             times.append(time.perf_counter() - t0)
-        print(f"heading update ({name}, {len(w.t)} samples): median {1e3 * statistics.median(times):.2f} ms, "
-              f"max {1e3 * max(times):.2f} ms")
-    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-          f"Python {platform.python_version()}, numpy {np.__version__}")
+        print(
+            f"heading update ({name}, {len(w.t)} samples): median {1e3 * statistics.median(times):.2f} ms, "
+            f"max {1e3 * max(times):.2f} ms"
+        )
+    print(
+        f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+        f"Python {platform.python_version()}, numpy {np.__version__}"
+    )
     return 0
 
 

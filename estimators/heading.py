@@ -148,7 +148,8 @@ def motion_subwindows(w: Window, params: HeadingParams, t_end: float) -> int:
 
 def _grid(center: float, half: float, step: float) -> Array:
     n = int(round(half / step))
-    return center + np.radians(step) * np.arange(-n, n + 1)
+    out: Array = center + np.radians(step) * np.arange(-n, n + 1)
+    return out
 
 
 def update_paper(state: HeadingState, w: Window, params: HeadingParams, t: float) -> bool:
@@ -297,7 +298,7 @@ def _fit_with_sensor_errors(
         y = (_rotate_z(-(d0 + rate * tau), b) - a).reshape(-1)
         r = y - jac @ x
         var = max(float(r @ r) / (3 * n), 1e-8) * n / n_eff
-        x = np.linalg.solve(jtj / var + np.diag(prior), (jac.T @ y) / var)
+        x = np.asarray(np.linalg.solve(jtj / var + np.diag(prior), (jac.T @ y) / var), np.float64)
     state.acc_bias, state.lever_error = x[:3].copy(), x[3:].copy()
     return d0, rate, sd, a + (jac @ x).reshape(n, 3)
 
@@ -308,7 +309,8 @@ def _delay(t: Array, x: Array, lag: float) -> Array:
     i1 = np.clip(np.searchsorted(t, s, side="left"), 1, len(t) - 1)
     i0 = i1 - 1
     w = ((s - t[i0]) / (t[i1] - t[i0]))[:, None]
-    return x[i0] + w * (x[i1] - x[i0])  # type: ignore[no-any-return]
+    out: Array = x[i0] + w * (x[i1] - x[i0])
+    return out
 
 
 def _rotate_z(delta: Array, v: Array) -> Array:

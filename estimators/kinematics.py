@@ -42,7 +42,8 @@ def shoulder_position(p_e: Array, x_a: Array, upper_arm_length_m: float | Array)
     la = np.asarray(upper_arm_length_m, dtype=np.float64)
     if la.ndim == 1:
         la = la[:, None]
-    return p_e - la * x_a  # type: ignore[no-any-return]
+    out: Array = p_e - la * x_a
+    return out
 
 
 def conventional(p_e: Array, x_c: Array, nominal_shoulder: Array) -> tuple[Array, Array]:
@@ -59,9 +60,11 @@ def joint_specific_force(f: Array, gyr: Array, gyr_dot: Array, r: Array) -> Arra
 
     ``f_E = f + ω × (ω × r) + ω̇ × r``; f (N,3) m/s², ω (N,3) rad/s, ω̇ (N,3) rad/s², r (3,) m.
     """
-    return f + np.cross(gyr, np.cross(gyr, r)) + np.cross(gyr_dot, r)  # type: ignore[no-any-return]
+    out: Array = f + np.cross(gyr, np.cross(gyr, r)) + np.cross(gyr_dot, r)
+    return out
 
 
 def inertial_acceleration(q_ia: Array, f: Array) -> Array:
     """Acceleration in the inertial frame I (eq. 2): ``q ⊗ f ⊗ q* − [0, 0, 9.81]``."""
-    return quat.rotate(q_ia, f) - GRAVITY
+    out: Array = quat.rotate(q_ia, f) - GRAVITY
+    return out

@@ -44,6 +44,7 @@ from estimators.params import PipelineParams
 from estimators.verdicts import CycleJudge, CycleVerdict
 
 Array: TypeAlias = NDArray[np.float64]
+Idx: TypeAlias = NDArray[Any]  # integer and boolean arrays
 EX = np.array([1.0, 0.0, 0.0])
 NCH = 18  # grid channels: v (3), u (3), sensor axes in I (9), robot elbow (3)
 ROW_COLUMNS = (
@@ -242,9 +243,9 @@ class _ImuStage:
         else:
             start = 0
         self.last = (float(t[-1]), gyr[-1].copy(), acc[-1].copy())
-        dt = np.diff(t)
-        for gi in np.flatnonzero(dt > 2.5 * ts):
-            gap = float(dt[gi])
+        dts = np.diff(t)
+        for gi in np.flatnonzero(dts > 2.5 * ts):
+            gap = float(dts[gi])
             q.gaps.append({"stream": "imu", "t": float(t[gi]), "duration_s": gap})
             self._run(t[start : gi + 1], gyr[start : gi + 1], acc[start : gi + 1])
             if gap <= self.p.imu_max_bridge_s:
@@ -261,7 +262,7 @@ class _ImuStage:
                 q.imu_resets += 1
                 self.seg += 1
                 self._reset()
-            start = gi + 1
+            start = int(gi) + 1
         self._run(t[start:], gyr[start:], acc[start:])
 
     def _run(self, t: Array, gyr: Array, acc: Array) -> None:
@@ -297,7 +298,7 @@ class _ImuStage:
                 self.v = self.v[i:]
             self.q_is, self.acc = self.q_is[i:], self.acc[i:]
 
-    def smooth(self, g: Array, half: float) -> tuple[Array, Array]:
+    def smooth(self, g: Array, half: float) -> tuple[Idx, Array]:
         """Acceleration terms (v, u) at grid times ``g``, anti-aliased by a centred Hann
         kernel of half-width ``half`` (s). Centred, so it shifts nothing in time: a lag
         between the two sides would turn into a heading bias on circular paths.
@@ -338,7 +339,7 @@ class _ImuStage:
         u = cx * r[0] + cy * r[1] + cz * r[2]
         return np.concatenate((v, u, c), axis=1)
 
-    def _bracket(self, s: Array) -> tuple[Array, Array, Array, Array]:
+    def _bracket(self, s: Array) -> tuple[Idx, Idx, Idx, Array]:
         n = len(self.t)
         i1 = np.searchsorted(self.t, s, side="left")
         i1c = np.clip(i1, 1, max(n - 1, 1))
@@ -347,7 +348,7 @@ class _ImuStage:
         w = np.clip((s - self.t[i0]) / (self.t[i1c] - self.t[i0]), 0.0, 1.0)
         return ok, i0, i1c, w
 
-    def interp(self, s: Array) -> tuple[Array, Array, Array]:
+    def interp(self, s: Array) -> tuple[Idx, Array, Idx]:
         """Orientation q_IA at times ``s`` (nlerp); ``ok`` where both neighbours exist in
         one segment; also the segment ids."""
         if len(self.t) < 2:
@@ -355,7 +356,7 @@ class _ImuStage:
         ok, i0, i1, w = self._bracket(s)
         return ok, quat.nlerp(self.q[i0], self.q[i1], w), self.segid[i1]
 
-    def interp_channels(self, s: Array) -> tuple[Array, Array]:
+    def interp_channels(self, s: Array) -> tuple[Idx, Array]:
         """Fusion channels linearly interpolated at ``s`` (no anti-alias: the paper's way)."""
         if len(self.t) < 2:
             return np.zeros(len(s), bool), np.full((len(s), 15), np.nan)
@@ -396,7 +397,7 @@ class _RobotStage:
         self.segid = np.concatenate((self.segid, seg))
         self.p_e = np.concatenate((self.p_e, p_e))
 
-    def interp(self, g: Array) -> tuple[Array, Array]:
+    def interp(self, g: Array) -> tuple[Idx, Array]:
         n = len(self.t)
         if n < 2:
             return np.zeros(len(g), bool), np.full((len(g), 3), np.nan)
@@ -463,7 +464,7 @@ class _GridStage:
         k_end = int(math.floor(until / self.dt))
         if k_end < self.k_next:
             return
-        g = np.arange(self.k_next, k_end + 1) * self.dt
+        g = np.arange(self.k_next, k_end + 1, dtype=np.float64) * self.dt
         self.k_next = k_end + 1
         if self.half > 0:
             ok_i, vu = imu.smooth(g, self.half)
@@ -473,7 +474,7 @@ class _GridStage:
         ok_r, p = robot.interp(g)
         ok = ok_i & ok_r
         x = np.concatenate((vu, p), axis=1)
-        parts: list[tuple[Array, Array, Array, Array, Array, Array]] = []
+        parts: list[tuple[Array, Array, Array, Array, Idx, Idx, Array]] = []
         # contiguous runs of valid samples within one IMU segment
         brk = np.flatnonzero(np.diff(ok.astype(np.int8)) != 0) + 1
         seg_brk = np.flatnonzero(np.diff(segs) != 0) + 1
@@ -984,7 +985,7 @@ class Pipeline:
 
         return take(self._row_wrist), take(self._row_pe), take(self._row_xc)
 
-    def _arm_lengths(self, t: Array, p_e: Array, spec: Array) -> Array:
+    def _arm_lengths(self, t: Array, p_e: Array, spec: Idx) -> Array:
         """Upper-arm length per row: the parameter, or measured at the rope reference.
 
         While the therapist holds the rope end on the shoulder (``shoulder_reference``), the
@@ -1021,7 +1022,7 @@ class Pipeline:
             self.quality.reject("arm_reference_unusable")
         return la
 
-    def _nominal(self, t: Array, shoulder: Array, good: Array, spec: Array) -> Array:
+    def _nominal(self, t: Array, shoulder: Array, good: Idx, spec: Idx) -> Array:
         """Nominal shoulder per row (contract §4): parameter, rope reference, or automatic
         (mean estimate over ``auto_nominal_s`` after convergence / after a reset event)."""
         n = len(t)
@@ -1049,7 +1050,8 @@ class Pipeline:
     def _displacement(self, shoulder: Array, nominal: Array) -> Array:
         d = shoulder - nominal
         if self.params.displacement_norm == "horizontal":
-            return np.hypot(d[:, 0], d[:, 1])  # type: ignore[no-any-return]
+            out: Array = np.hypot(d[:, 0], d[:, 1])
+            return out
         return np.linalg.norm(d, axis=1)  # type: ignore[no-any-return]
 
     def _trim(self) -> None:

@@ -36,7 +36,8 @@ def x_axis(q: Array) -> Array:
 
 
 def conj(q: Array) -> Array:
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
+    out: Array = q * np.array([1.0, -1.0, -1.0, -1.0])
+    return out
 
 
 def rotate(q: Array, v: Array) -> Array:
