@@ -23,7 +23,10 @@ from backend.db.engine import Database
 from backend.db.sessions import interrupt_active_sessions
 from backend.deps import AppState
 from backend.routers import api_router
+from backend.routers import viz as viz_router
 from backend.settings import Settings, get_settings
+from backend.static import install_frontend
+from backend.viz import Viz
 
 log = logging.getLogger(__name__)
 
@@ -70,10 +73,22 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         # ---- [live] 2. Pipeline manager starts here; it implements backend.deps.LiveHooks:
         #      `state.live = manager`. It writes through `state.database.transaction()`.
         # ---- [live] 3. viser server starts here.
+        # ---- [ui] 3D view (backend/viz.py): created here, its server starts on first use
+        #      (GET/PUT /api/viz); the live side feeds it with app.state.viz.update(device, rows).
+        app.state.viz = Viz(
+            host=settings.viser_host or settings.host,
+            port=settings.viser_port,
+            enabled=settings.viser_enabled,
+        )
         yield
     finally:
         # ---- [live] close in reverse order: 3. viser, 2. pipelines (finish sessions,
         #      flush recordings), 1. Zenoh.
+        # ---- [ui] 3D view
+        viz: Viz | None = getattr(app.state, "viz", None)
+        if viz is not None:
+            viz.close()
+            del app.state.viz
         del app.state.rehab
         await state.database.dispose()
 
@@ -98,4 +113,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             allow_headers=["*"],
         )
     app.include_router(api_router)
+    # ---- [ui] the 3D view's API, and the built front end (dashboard at /, overlay at
+    #      /overlay); the front end answers through a 404 handler, so it never shadows
+    #      routes added after this line.
+    app.include_router(viz_router.router)
+    install_frontend(app)
     return app

@@ -36,6 +36,7 @@ F64 = NDArray[np.float64]
 TRACE_POINTS = 240  # shoulder trace: ~8 s at 30 updates/s
 CIRCLE_SEGMENTS = 72
 MAX_FPS = 30.0
+CAMERA_OFFSET = np.array([0.75, -0.55, 0.45])  # from the arm's middle: front-side, above
 
 # Okabe–Ito, as on the dashboard: ok, outside, warning; gray when unknown.
 STATE_RGB: dict[str | None, tuple[int, int, int]] = {
@@ -104,7 +105,8 @@ def quat_z_to(direction: F64) -> F64:
         return np.array([0.0, 1.0, 0.0, 0.0])
     axis = np.cross(z, d)
     q = np.array([1.0 + c, axis[0], axis[1], axis[2]])
-    return q / np.linalg.norm(q)
+    out: F64 = q / np.linalg.norm(q)
+    return out
 
 
 def quat_x_to(direction: F64) -> F64:
@@ -122,8 +124,12 @@ def quat_x_to(direction: F64) -> F64:
     w = math.sqrt(max(0.0, 1.0 + m[0, 0] + m[1, 1] + m[2, 2])) / 2.0
     if w > 1e-6:
         return np.array(
-            [w, (m[2, 1] - m[1, 2]) / (4 * w), (m[0, 2] - m[2, 0]) / (4 * w),
-             (m[1, 0] - m[0, 1]) / (4 * w)]
+            [
+                w,
+                (m[2, 1] - m[1, 2]) / (4 * w),
+                (m[0, 2] - m[2, 0]) / (4 * w),
+                (m[1, 0] - m[0, 1]) / (4 * w),
+            ]
         )
     # 180° turn: pick the largest diagonal element.
     i = int(np.argmax(np.diag(m)))
@@ -134,7 +140,8 @@ def quat_x_to(direction: F64) -> F64:
     q[1 + i] = 0.25 * s
     q[1 + j] = (m[j, i] + m[i, j]) / s
     q[1 + k] = (m[k, i] + m[i, k]) / s
-    return q / np.linalg.norm(q)
+    out: F64 = q / np.linalg.norm(q)
+    return out
 
 
 def unit_circle(n: int = CIRCLE_SEGMENTS) -> F64:
@@ -180,8 +187,14 @@ class _Scene:
         s.set_up_direction("+z")
         self.root = s.add_frame("/arm", show_axes=False)
         self.floor = s.add_grid(
-            "/arm/table", width=1.2, height=1.2, cell_size=0.05, section_size=0.25,
-            plane="xy", position=(0.0, 0.0, 0.0), visible=False,
+            "/arm/table",
+            width=1.2,
+            height=1.2,
+            cell_size=0.05,
+            section_size=0.25,
+            plane="xy",
+            position=(0.0, 0.0, 0.0),
+            visible=False,
         )
         self.shoulder = s.add_icosphere("/arm/shoulder", radius=0.03, color=STATE_RGB[None])
         self.elbow = s.add_icosphere("/arm/elbow", radius=0.024, color=JOINT)
@@ -193,8 +206,12 @@ class _Scene:
             "/arm/nominal", radius=0.012, color=(110, 110, 110), opacity=0.8, visible=False
         )
         self.tolerance = s.add_line_segments(
-            "/arm/nominal_ring", points=unit_circle(), colors=(120, 120, 120),
-            thickness=0.006, scale=0.10, visible=False,
+            "/arm/nominal_ring",
+            points=unit_circle(),
+            colors=(120, 120, 120),
+            thickness=0.006,
+            scale=0.10,
+            visible=False,
         )
         pts, cols = trace_segments([])
         self.trace = s.add_line_segments(
@@ -210,8 +227,16 @@ class _Scene:
             "/arm/ropes", points=np.zeros((4, 2, 3)), colors=ROPE, thickness=0.004
         )
         self.handles = [
-            self.shoulder, self.elbow, self.wrist, self.upper, self.fore, self.imu,
-            self.wrist_cuff, self.prox_cuff, self.ropes, self.trace,
+            self.shoulder,
+            self.elbow,
+            self.wrist,
+            self.upper,
+            self.fore,
+            self.imu,
+            self.wrist_cuff,
+            self.prox_cuff,
+            self.ropes,
+            self.trace,
         ]
         self.camera_set = False
 
@@ -282,10 +307,10 @@ class _Scene:
             centre = f.shoulder if f.shoulder is not None else f.elbow
             look = (centre + f.wrist) / 2.0
             server.initial_camera.look_at = tuple(look)
-            server.initial_camera.position = tuple(look + np.array([0.9, -0.9, 0.7]))
+            server.initial_camera.position = tuple(look + CAMERA_OFFSET)
             for client in server.get_clients().values():
                 client.camera.look_at = tuple(look)
-                client.camera.position = tuple(look + np.array([0.9, -0.9, 0.7]))
+                client.camera.position = tuple(look + CAMERA_OFFSET)
             self.camera_set = True
 
 
@@ -328,14 +353,11 @@ class Viz:
 
                 server = viser.ViserServer(host=self.host, port=self.requested_port, verbose=False)
                 server.gui.configure_theme(
-                    show_logo=False, show_share_button=False, control_layout="collapsible",
+                    show_logo=False,
+                    show_share_button=False,
+                    control_layout="floating",
+                    control_width="small",
                     brand_color=(11, 61, 92),
-                )
-                server.gui.add_markdown(
-                    "**Shoulder**: green inside the tolerance, blue outside, orange when out "
-                    "too long. Gray ring: tolerance around the nominal shoulder. Pink box: "
-                    "the IMU. Dark rings: the robot's cuffs; brown lines: its ropes "
-                    "(schematic anchors)."
                 )
                 self._server = server
                 self._scene = _Scene(server)
@@ -436,9 +458,7 @@ class Viz:
             nominal = _point(rows, "nominal", i)
             if nominal is not None or ("nominal_x" in rows):
                 f.nominal = nominal
-            f.state = (
-                states[i] if states is not None and isinstance(states[i], str) else None
-            )
+            f.state = states[i] if states is not None and isinstance(states[i], str) else None
             if f.anchors is None and f.wrist is not None:
                 f.anchors = _rope_anchors(f.wrist)
             f.version += 1

@@ -124,6 +124,24 @@ def optdelta(grid: Array, sc: float, ss: float) -> float:
     return float(grid[int(np.argmax(sc * np.cos(grid) + ss * np.sin(grid)))])
 
 
+def residual_std(a: Array, b: Array, delta: float, span_s: float, params: HeadingParams) -> float:
+    """Standard deviation (rad) of a constant-heading estimate from its residual.
+
+    ``Var δ ≈ Σ|e_h|² / (2 N_eff Σ|b_h|²)`` with ``N_eff`` the independent samples left
+    after the 0.5 Hz low-pass (``effective_rate_hz`` per second of window).
+    """
+    if len(a) < 2:
+        return math.inf
+    c, s = math.cos(delta), math.sin(delta)
+    ex = c * a[:, 0] - s * a[:, 1] - b[:, 0]
+    ey = s * a[:, 0] + c * a[:, 1] - b[:, 1]
+    n_eff = max(1.0, span_s * params.effective_rate_hz)
+    bh = float(np.sum(b[:, 0] ** 2 + b[:, 1] ** 2))
+    if bh <= 0:
+        return math.inf
+    return math.sqrt(float(np.sum(ex * ex + ey * ey)) / (2.0 * n_eff * bh))
+
+
 def motion_subwindows(w: Window, params: HeadingParams, t_end: float) -> int:
     """Count sub-windows of the last ``window_s`` where the elbow leaves a sphere of
     ``motion_diameter_m`` (§3.2.2).
@@ -170,7 +188,10 @@ def update_paper(state: HeadingState, w: Window, params: HeadingParams, t: float
     state.n_counted += 1
     state.history.append(d)
     state.delta, state.t_update = d, t
-    state.std = math.radians(params.fine_step_deg) / math.sqrt(12.0)
+    state.std = math.hypot(
+        residual_std(a, b, d, float(np.ptp(w.t[w.valid])), params),
+        math.radians(params.fine_step_deg) / math.sqrt(12.0),
+    )
     if not state.converged and len(state.history) > params.converge_count:
         last = state.history[-(params.converge_count + 1) :]
         tol = math.radians(params.converge_tol_deg)

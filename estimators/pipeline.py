@@ -127,6 +127,7 @@ class Quality:
     """Data-quality counters of one device's streams (reported, never silently dropped)."""
 
     rejected: dict[str, int] = field(default_factory=dict)
+    ignored: dict[str, int] = field(default_factory=dict)  # valid messages the method does not use
     imu_samples: int = 0
     robot_samples: int = 0
     imu_bridged_gaps: int = 0
@@ -145,6 +146,7 @@ class Quality:
     def as_dict(self) -> dict[str, Any]:
         return {
             "rejected": dict(sorted(self.rejected.items())),
+            "ignored": dict(sorted(self.ignored.items())),
             "imu_samples": self.imu_samples,
             "robot_samples": self.robot_samples,
             "imu_bridged_gaps": self.imu_bridged_gaps,
@@ -644,14 +646,19 @@ class Pipeline:
             )
         if hasattr(msg, "type") and hasattr(msg, "t"):
             return self.feed_event(float(msg.t), str(msg.type), getattr(msg, "point", None))
-        self.quality.reject("unsupported_message")
+        # optional streams (camera) are valid but not used by the method: counted, not rejected
+        self.quality.ignored[type(msg).__name__] = (
+            self.quality.ignored.get(type(msg).__name__, 0) + 1
+        )
         return False
 
     def feed_imu(
         self, t: Array, gyr: Array, acc: Array, seq: int | None = None, segment: str = "upperarm"
     ) -> bool:
-        if segment != "upperarm":
-            self.quality.reject(f"ignored_segment_{segment}")
+        if segment != "upperarm":  # forearm/trunk IMUs are for later estimators
+            self.quality.ignored[f"imu_{segment}"] = (
+                self.quality.ignored.get(f"imu_{segment}", 0) + 1
+            )
             return False
         if not self._imu_stream.admit(float(t[0]), seq, self.quality):
             return False

@@ -4,7 +4,7 @@ import "./styles.css";
 import { render } from "preact";
 import { useEffect, useState } from "preact/hooks";
 
-import { api, onUnauthorized } from "./lib/api";
+import { api, hasLoginHint, onUnauthorized, setLoginHint } from "./lib/api";
 import { currentPath, match, navigate, onRoute } from "./lib/router";
 import type { Therapist } from "./lib/types";
 import { DevicesPage } from "./pages/Devices";
@@ -31,11 +31,20 @@ function App() {
 
   useEffect(() => onRoute(setPath), []);
   useEffect(() => {
-    api
-      .get<Therapist>("/api/auth/me")
-      .then((me) => setAuth({ state: "in", me }))
-      .catch(() => setAuth({ state: "out" }));
-    return onUnauthorized(() => setAuth({ state: "out" }));
+    // Without a remembered login, go straight to the login page (no 401 in the console).
+    if (!hasLoginHint()) setAuth({ state: "out" });
+    else
+      api
+        .get<Therapist>("/api/auth/me")
+        .then((me) => setAuth({ state: "in", me }))
+        .catch(() => {
+          setLoginHint(false);
+          setAuth({ state: "out" });
+        });
+    return onUnauthorized(() => {
+      setLoginHint(false);
+      setAuth({ state: "out" });
+    });
   }, []);
 
   const route = match(path);
@@ -53,6 +62,7 @@ function App() {
     return (
       <LoginPage
         onLoggedIn={(me) => {
+          setLoginHint(true);
           setAuth({ state: "in", me });
           const next = route.query.get("next");
           navigate(next && next.startsWith("/") && !next.startsWith("//") ? next : "/", true);
@@ -65,6 +75,7 @@ function App() {
     try {
       await api.post("/api/auth/logout");
     } finally {
+      setLoginHint(false);
       setAuth({ state: "out" });
     }
   };

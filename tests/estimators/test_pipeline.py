@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from backend import wire
 from estimators.params import PipelineParams
 from estimators.pipeline import Output, Pipeline
-from tests.conftest import Session
+from tests.conftest import Session, make_session
 
 
 def _run(messages, params=None) -> tuple[Output, Pipeline]:
@@ -267,3 +267,26 @@ def test_automatic_nominal_without_reference(short_session: Session) -> None:
     assert np.isnan(nom[first]).all() and np.isfinite(nom[later]).all()
     assert np.ptp(nom[later], axis=0).max() == 0.0
     assert p.arm_length_estimate is None  # no rope reference, no measured length
+
+
+@pytest.mark.parametrize(("imu_hz", "robot_hz", "batch"), [(400.0, 10.0, 16), (50.0, 100.0, 1)])
+def test_other_rates_and_batching(imu_hz: float, robot_hz: float, batch: int) -> None:
+    s = make_session(11, imu_rate_hz=imu_hz, robot_rate_hz=robot_hz, imu_batch=batch)
+    out, p = _run(s.messages)
+    assert p._imu.ts == pytest.approx(1.0 / imu_hz)
+    tr = s.sim.truth
+    conv = out.rows["heading_converged"]
+    assert conv.any() and out.n == sum(
+        len(m.t) for m in s.messages if isinstance(m, wire.RobotMessage)
+    )
+    i = np.clip(np.searchsorted(tr.t, out.rows["t"]), 0, len(tr.t) - 1)
+    err = np.linalg.norm(out.rows["shoulder"] - tr.shoulder[i], axis=1)[conv]
+    assert np.median(err) < 0.03
+
+
+def test_camera_and_other_segments_are_counted_not_rejected(short_session: Session) -> None:
+    p = Pipeline()
+    cam = wire.CameraMessage("sim01", np.array([1.0]), np.zeros((1, 3)), np.ones((1, 3)))
+    trunk = wire.ImuMessage("sim01", "trunk", np.array([1.0]), np.zeros((1, 3)), np.ones((1, 3)))
+    assert not p.feed(cam) and not p.feed(trunk)
+    assert p.quality.rejected == {} and p.quality.ignored == {"CameraMessage": 1, "imu_trunk": 1}

@@ -94,3 +94,24 @@ export function errorText(e: unknown): string {
   if (e instanceof Error) return e.message;
   return String(e);
 }
+
+// The session cookie is HttpOnly: the page cannot see it. It remembers instead that a login
+// happened (no secret in it), to skip a doomed /api/auth/me on a fresh browser.
+const HINT = "rehab.loggedIn";
+
+export function hasLoginHint(): boolean {
+  try {
+    return localStorage.getItem(HINT) === "1";
+  } catch {
+    return true;
+  }
+}
+
+export function setLoginHint(on: boolean): void {
+  try {
+    if (on) localStorage.setItem(HINT, "1");
+    else localStorage.removeItem(HINT);
+  } catch {
+    /* storage disabled: /api/auth/me decides */
+  }
+}
