@@ -35,9 +35,7 @@ STATE_NAMES = {-1: "", 0: "ok", 1: "outside", 2: "warning"}
 
 
 _EST_FMT = "%r,%.5f,%.5f,%.5f,%.5f,%.5f,%.5f,%.3f,%.3f,%d,%.5f,%s"
-_DET_FMT = (
-    "%r,%.6f,%.6f,%.6f,%.6f,%.3f,%.4f,%.3f,%.3f,%.5f,%.5f,%.5f,%.3f,%.5f,%.5f,%.5f,%.4f"
-)
+_DET_FMT = "%r,%.6f,%.6f,%.6f,%.6f,%.3f,%.4f,%.3f,%.3f,%.5f,%.5f,%.5f,%.3f,%.5f,%.5f,%.5f,%.4f"
 
 
 def _lines(fmt: str, cols: list[list[Any]]) -> list[str]:
@@ -64,10 +62,15 @@ def estimate_lines(rows: dict[str, np.ndarray]) -> list[str]:
 def detail_lines(rows: dict[str, np.ndarray]) -> list[str]:
     m = np.concatenate(
         [
-            rows["t"][:, None], rows["q_ra"], rows["heading_std_deg"][:, None],
-            rows["heading_confidence"][:, None], rows["upper_arm_elevation_deg"][:, None],
-            rows["upper_arm_azimuth_deg"][:, None], rows["nominal_shoulder"],
-            rows["conv_elbow_angle_deg"][:, None], rows["wrist"],
+            rows["t"][:, None],
+            rows["q_ra"],
+            rows["heading_std_deg"][:, None],
+            rows["heading_confidence"][:, None],
+            rows["upper_arm_elevation_deg"][:, None],
+            rows["upper_arm_azimuth_deg"][:, None],
+            rows["nominal_shoulder"],
+            rows["conv_elbow_angle_deg"][:, None],
+            rows["wrist"],
             rows["upper_arm_length_m"][:, None],
         ],
         axis=1,
@@ -108,6 +111,7 @@ class DeviceRun:
     est_lines: list[str] = field(default_factory=list)
     det_lines: list[str] = field(default_factory=list)
     cycles: list[dict[str, Any]] = field(default_factory=list)
+    episodes: list[dict[str, Any]] = field(default_factory=list)
     unjudged: list[dict[str, Any]] = field(default_factory=list)
     _stats: dict[str, list[np.ndarray]] = field(default_factory=dict)
 
@@ -132,6 +136,15 @@ class DeviceRun:
                 "state",
             ):
                 self._stats.setdefault(k, []).append(out.rows[k])
+        for e in out.episodes:
+            self.episodes.append(
+                {
+                    "start": e.start,
+                    "end": e.end,
+                    "duration_s": e.duration_s,
+                    "max_displacement_m": _finite(e.max_displacement_m),
+                }
+            )
         for v in out.cycles:
             d = {
                 "start": v.start,
@@ -176,6 +189,8 @@ class DeviceRun:
             "device": self.device,
             "cycles": self.cycles,
             "unjudged_cycles": self.unjudged,
+            # non-repetitive tasks: outside for longer than the tolerated time (paper §5)
+            "compensatory_episodes": self.episodes,
             "summary": {
                 "rows": len(self.est_lines),
                 "cycles": len(self.cycles),

@@ -37,7 +37,7 @@ from vqf import VQF
 from estimators import heading as hd
 from estimators import kinematics as kin
 from estimators import quaternion as quat
-from estimators.compensation import CompensationParams, Indicator
+from estimators.compensation import CompensationParams, Episode, EpisodeTracker, Indicator
 from estimators.cycles import CycleParams, CycleSegmenter
 from estimators.filters import LowPass, dc_group_delay_s
 from estimators.params import PipelineParams
@@ -107,6 +107,7 @@ class Output:
     rows: dict[str, Array] = field(default_factory=dict)
     feedback: list[dict[str, Any]] = field(default_factory=list)
     cycles: list[CycleVerdict] = field(default_factory=list)
+    episodes: list[Episode] = field(default_factory=list)  # tolerated-time rule (§3.4, §5)
 
     @property
     def n(self) -> int:
@@ -120,6 +121,7 @@ class Output:
                 self.rows = {k: np.concatenate((v, other.rows[k])) for k, v in self.rows.items()}
         self.feedback.extend(other.feedback)
         self.cycles.extend(other.cycles)
+        self.episodes.extend(other.episodes)
 
 
 @dataclass
@@ -621,6 +623,7 @@ class Pipeline:
         self._indicator = Indicator(self._cp)
         self._segmenter = CycleSegmenter(CycleParams(mode=p.cycle_mode))
         self._judge = CycleJudge(self._cp)
+        self._episodes = EpisodeTracker(self._cp)
         self._xc_prev_t = -math.inf
         self._xc_prev = np.zeros(3)
 
@@ -919,6 +922,7 @@ class Pipeline:
         boundaries = self._segmenter.update(t, wrist)
         codes, changes = self._indicator.update(t, disp, None, boundaries)
         verdicts = self._judge.update(t, codes, boundaries, disp)
+        episodes = self._episodes.update(t, codes, disp)
         fb: list[dict[str, Any]] = [{"t": tc, "type": "state", "state": st} for tc, st in changes]
         fb.extend(
             {
@@ -958,6 +962,7 @@ class Pipeline:
         }
         out.feedback = fb
         out.cycles = list(verdicts)
+        out.episodes = episodes
         return out
 
     def _elbow_angle(

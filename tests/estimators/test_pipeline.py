@@ -290,3 +290,16 @@ def test_camera_and_other_segments_are_counted_not_rejected(short_session: Sessi
     trunk = wire.ImuMessage("sim01", "trunk", np.array([1.0]), np.zeros((1, 3)), np.ones((1, 3)))
     assert not p.feed(cam) and not p.feed(trunk)
     assert p.quality.rejected == {} and p.quality.ignored == {"CameraMessage": 1, "imu_trunk": 1}
+
+
+def test_tolerated_time_episodes_for_non_repetitive_tasks(
+    short_session: Session, batch: Output
+) -> None:
+    """Every compensatory episode is an outside run longer than the tolerated time, and
+    they happen in the compensatory phase."""
+    tr = short_session.sim.truth
+    assert batch.episodes
+    for e in batch.episodes:
+        assert e.duration_s > 0.5
+        k = np.clip(np.searchsorted(tr.t, 0.5 * (e.start + e.end)), 0, len(tr.t) - 1)
+        assert tr.phase[k] in (2, 3)
