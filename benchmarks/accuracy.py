@@ -25,7 +25,12 @@ from backend.evaluate import evaluate, load_truth, stats
 from estimators.params import PipelineParams
 from simulator import SimConfig, simulate
 
-METHODS = {"improved": PipelineParams(), "paper": PipelineParams(method="paper")}
+METHODS = {
+    "improved": PipelineParams(),
+    "improved, assumed l_A": PipelineParams(arm_length="fixed"),
+    "paper": PipelineParams(method="paper"),
+    "paper, assumed l_A (plain)": PipelineParams(method="paper", arm_length="fixed"),
+}
 
 
 def run_subject(seed: int, duration: float, work: Path) -> dict[str, Any]:
@@ -77,7 +82,7 @@ def _deg(x: float | None) -> str:
 def markdown(results: list[dict[str, Any]]) -> str:
     lines = [
         "| method | subject | shoulder median / p95 (cm) | elbow median / p95 (°) | "
-        "conventional shoulder, compensatory (cm) | cycles correct | converged after motion (s) |",
+        "conventional shoulder, compensatory median / p95 (cm) | cycles correct | converged after motion (s) |",
         "|---|---|---|---|---|---|---|",
     ]
     for method in METHODS:
@@ -88,7 +93,7 @@ def markdown(results: list[dict[str, Any]]) -> str:
             lines.append(
                 f"| {method} | {label} | {_cm(a['shoulder_m']['median'])} / {_cm(a['shoulder_m']['p95'])} "
                 f"| {_deg(a['elbow_deg']['median'])} / {_deg(a['elbow_deg']['p95'])} "
-                f"| {_cm(r['accuracy']['compensatory']['conv_shoulder_m']['median'])} "
+                f"| {_cm(r['accuracy']['compensatory']['conv_shoulder_m']['median'])} / {_cm(r['accuracy']['compensatory']['conv_shoulder_m']['p95'])} "
                 f"| {cy['correct']}/{cy['judged']} (missed {cy['judged'] and sum(v for k, v in cy['confusion'].items() if k.endswith('missed'))}) "
                 f"| {_deg(r['heading']['convergence_s'])} |"
             )
@@ -101,7 +106,7 @@ def markdown(results: list[dict[str, Any]]) -> str:
             lines.append(
                 f"| **{method}** | **pooled, {ph}** | {_cm(a['shoulder_m']['median'])} / {_cm(a['shoulder_m']['p95'])} "
                 f"| {_deg(a['elbow_deg']['median'])} / {_deg(a['elbow_deg']['p95'])} "
-                f"| {_cm(a['conv_shoulder_m']['median'])} | {right}/{judged} "
+                f"| {_cm(a['conv_shoulder_m']['median'])} / {_cm(a['conv_shoulder_m']['p95'])} | {right}/{judged} "
                 f"| max {_deg(max(x for x in p['convergence_s'] if x is not None) if any(x is not None for x in p['convergence_s']) else None)} |"
             )
     return "\n".join(lines)
