@@ -299,10 +299,7 @@ def _fit_with_sensor_errors(
     δ(t) is fixed, so the fit alternates the drift fit with a regularised least squares.
     """
     n = len(a)
-    # jac (3n, 6): a_true ≈ a + jac · x, rows ordered sample-major (x, y, z per sample)
-    c = cl[:, :9].reshape(n, 3, 3).transpose(0, 2, 1)
-    ldd = cl[:, 9:].reshape(n, 3, 3).transpose(0, 2, 1)
-    jac = np.concatenate((-c, ldd), axis=2).reshape(3 * n, 6)
+    jac = _jacobian(cl)
     jtj = jac.T @ jac
     prior = np.concatenate(
         (np.full(3, 1.0 / params.acc_bias_prior**2), np.full(3, 1.0 / params.lever_prior**2))
@@ -322,6 +319,16 @@ def _fit_with_sensor_errors(
         x = np.asarray(np.linalg.solve(jtj / var + np.diag(prior), (jac.T @ y) / var), np.float64)
     state.acc_bias, state.lever_error = x[:3].copy(), x[3:].copy()
     return d0, rate, sd, a + (jac @ x).reshape(n, 3)
+
+
+def _jacobian(cl: Array) -> Array:
+    """(3n, 6): how the accelerometer bias and the lever error enter the elbow acceleration,
+    ``a_true ≈ a + jac · [β, Δr]``, rows sample-major (x, y, z of each sample)."""
+    n = len(cl)
+    c = cl[:, :9].reshape(n, 3, 3).transpose(0, 2, 1)
+    ldd = cl[:, 9:].reshape(n, 3, 3).transpose(0, 2, 1)
+    out: Array = np.concatenate((-c, ldd), axis=2).reshape(3 * n, 6)
+    return out
 
 
 def _delay(t: Array, x: Array, lag: float) -> Array:
@@ -364,7 +371,13 @@ def update_improved(
     if params.estimate_lag and (state.n_counted % params.lag_every == 0 or not state.converged):
         dt = float(np.median(np.diff(w.t))) if len(w.t) > 1 else 0.04
         k = int(np.searchsorted(w.t, t - params.window_s, side="right"))
-        tail = Window(w.t[k:], w.a[k:], w.b[k:], w.p[k:], w.valid[k:])
+        a_tail = w.a[k:]
+        if params.estimate_sensor_errors and w.cl is not None:
+            # the latency is read from the elbow acceleration as corrected so far: an
+            # uncorrected lever error distorts the features and shows up as a false lag
+            x = np.concatenate((state.acc_bias, state.lever_error))
+            a_tail = a_tail + (_jacobian(w.cl[k:]) @ x).reshape(-1, 3)
+        tail = Window(w.t[k:], a_tail, w.b[k:], w.p[k:], w.valid[k:])
         lag, weight = estimate_lag(tail, params, dt)
     else:
         lag, weight = 0.0, 0.0
