@@ -11,10 +11,11 @@ import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
-from fastapi import FastAPI
+from fastapi import Depends, FastAPI
 from fastapi.middleware.cors import CORSMiddleware
 
 from backend.auth.first_admin import ensure_first_admin
+from backend.auth.guards import current_therapist
 from backend.auth.ratelimit import LoginLimiter
 from backend.auth.secret import load_or_create_secret
 from backend.auth.tokens import TokenSigner
@@ -22,7 +23,8 @@ from backend.db.devices import mark_all_devices_offline
 from backend.db.engine import Database
 from backend.db.sessions import interrupt_active_sessions
 from backend.deps import AppState
-from backend.routers import api_router
+from backend.live.manager import LiveManager
+from backend.routers import api_router, exports, live
 from backend.routers import viz as viz_router
 from backend.settings import Settings, get_settings
 from backend.static import install_frontend
@@ -67,11 +69,15 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
     settings: Settings = app.state.settings
     state = await open_storage(settings)
     app.state.rehab = state
+    manager: LiveManager | None = None
     try:
-        # ---- [live] 1. Zenoh session opens here (settings.zenoh_listen / zenoh_connect,
-        #      settings.key_prefix).
-        # ---- [live] 2. Pipeline manager starts here; it implements backend.deps.LiveHooks:
-        #      `state.live = manager`. It writes through `state.database.transaction()`.
+        # ---- [live] 1. Zenoh session and 2. pipeline manager (LiveManager opens Zenoh,
+        #      then runs one worker per device; it implements backend.deps.LiveHooks).
+        #      `rehab serve` requires Zenoh; elsewhere (tests, tools) a busy endpoint
+        #      leaves the service running without live data, with an error logged.
+        manager = LiveManager(settings, state.database, state.interrupted_sessions)
+        await manager.start(require_zenoh=getattr(app.state, "live_required", False))
+        state.live = manager
         # ---- [live] 3. viser server starts here.
         # ---- [ui] 3D view (backend/viz.py): created here, its server starts on first use
         #      (GET/PUT /api/viz); the live side feeds it with app.state.viz.update(device, rows).
@@ -80,6 +86,7 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
             port=settings.viser_port,
             enabled=settings.viser_enabled,
         )
+        manager.viz = app.state.viz  # [live] feeds the 3D view with the dashboard's rows
         yield
     finally:
         # ---- [live] close in reverse order: 3. viser, 2. pipelines (finish sessions,
@@ -89,6 +96,8 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         if viz is not None:
             viz.close()
             del app.state.viz
+        if manager is not None:
+            await manager.close()
         del app.state.rehab
         await state.database.dispose()
 
@@ -113,6 +122,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             allow_headers=["*"],
         )
     app.include_router(api_router)
+    # ---- [live] WebSocket feeds (they guard themselves) and exports (therapists only)
+    app.include_router(live.router, prefix="/api")
+    app.include_router(exports.router, prefix="/api", dependencies=[Depends(current_therapist)])
     # ---- [ui] the 3D view's API, and the built front end (dashboard at /, overlay at
     #      /overlay); the front end answers through a 404 handler, so it never shadows
     #      routes added after this line.

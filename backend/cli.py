@@ -65,6 +65,10 @@ def main(argv: list[str] | None = None) -> int:
 
     evaluate.add_parser(sub)
 
+    from backend import cli_live
+
+    cli_live.add_parser(sub)
+
     args = ap.parse_args(argv)
     return int(args.func(args))
 

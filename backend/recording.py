@@ -77,18 +77,45 @@ def write(path: str | Path, messages: Iterable[tuple[str, Any]]) -> int:
 
 
 class Writer:
-    """Append-only recorder that flushes to the OS on demand (crash safety is the caller's)."""
+    """Append-only recorder of contract lines.
 
-    def __init__(self, path: str | Path) -> None:
+    ``flush()`` pushes everything appended so far to the OS. For ``.gz`` each flush ends a
+    deflate block with a sync marker, so a file cut by ``kill -9`` still yields every line
+    up to the last flush (:func:`read` tolerates the missing gzip trailer). Crash safety is
+    the caller's: flush often enough (the live service flushes every 0.25 s).
+    """
+
+    def __init__(self, path: str | Path, mode: str = "a", compresslevel: int = 6) -> None:
+        if mode not in ("a", "w", "x"):
+            raise ValueError("mode must be 'a', 'w' or 'x'")
         self.path = Path(path)
-        self._fh = _open_text(self.path, "a")
+        self.lines = 0
+        self._raw: IO[bytes] = open(self.path, mode + "b")  # noqa: SIM115
+        self._fh: IO[bytes] = self._raw
+        if self.path.suffix == ".gz":
+            # mtime=0: the same messages give byte-identical files
+            self._fh = gzip.GzipFile(  # type: ignore[assignment]
+                fileobj=self._raw, mode="ab", compresslevel=compresslevel, mtime=0
+            )
 
     def append(self, key: str, payload: Any) -> None:
-        self._fh.write(json.dumps({"key": key, "payload": payload}, separators=(",", ":")))
-        self._fh.write("\n")
+        """One line from a payload object (encoded like :func:`write`)."""
+        self.append_raw(key, json.dumps(payload, separators=(",", ":")).encode("utf-8"))
+
+    def append_raw(self, key: str, payload: bytes) -> None:
+        """One line from a payload that is already one JSON value without line breaks
+        (the live service records payloads byte for byte as received)."""
+        self._fh.write(b'{"key":' + json.dumps(key).encode("utf-8") + b',"payload":')
+        self._fh.write(payload)
+        self._fh.write(b"}\n")
+        self.lines += 1
 
     def flush(self) -> None:
-        self._fh.flush()
+        self._fh.flush()  # GzipFile: Z_SYNC_FLUSH, then flushes the file object
+        if self._fh is not self._raw:
+            self._raw.flush()
 
     def close(self) -> None:
-        self._fh.close()
+        if self._fh is not self._raw:
+            self._fh.close()  # writes the gzip trailer; leaves fileobj open
+        self._raw.close()

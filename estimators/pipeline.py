@@ -727,6 +727,11 @@ class Pipeline:
             i += 1
         self._n_decided = i
 
+    @property
+    def rows_ready(self) -> bool:
+        """Whether :meth:`poll` would return rows now (cheap; for callers polling on demand)."""
+        return self._n_decided > self._n_done
+
     def status(self) -> dict[str, Any]:
         """What a dashboard shows beside the numbers: convergence and its progress, the
         heading's confidence, the estimated sensor errors, and the data quality."""

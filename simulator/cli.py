@@ -43,6 +43,12 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--device", default="sim01", help="device name in the keys (default sim01)")
     p.add_argument("--cycle-events", action="store_true",
                    help="publish a cycle_start event at every cycle start")
+    p.add_argument("--publish", metavar="ENDPOINT",
+                   help="also publish the session over Zenoh to ENDPOINT (a service or a "
+                   "router, e.g. tcp/127.0.0.1:7447), timed by its timestamps")
+    p.add_argument("--speed", type=float, default=1.0, metavar="X",
+                   help="with --publish: 1 = real time (default), 20 = twenty times faster, "
+                   "0 = as fast as possible")
     p.add_argument("--ideal", action="store_true",
                    help="switch every sensor, robot and placement error off")
     p.set_defaults(func=run)
@@ -80,6 +86,12 @@ def run(args: argparse.Namespace) -> int:
     sim.truth.save(out / TRUTH_NAME, sim.subject)
     (out / SUBJECT_NAME).write_text(sim.subject.to_json() + "\n", encoding="utf-8")
     print(f"{sim.summary()} -> {out} ({time.perf_counter() - start:.1f} s)")
+    if getattr(args, "publish", None):
+        from simulator.publish import publish
+
+        start = time.perf_counter()
+        n = publish(args.publish, sim.messages, args.speed)
+        print(f"published {n} messages to {args.publish} ({time.perf_counter() - start:.1f} s)")
     return 0
 
 

@@ -1,0 +1,166 @@
+"""WebSocket fan-out: per-client bounded queues, estimates decimated per device.
+
+Each message is serialised once and handed to every interested client as text. A client
+that cannot keep up loses messages (counted), it never slows the pipelines. Estimate rows
+are concatenated between sends, so a client sees every row even at the 30 Hz cap; state
+changes and cycle verdicts bypass the cap. A state change can therefore arrive up to one
+decimation interval before the rows that led to it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import orjson
+
+from backend.live.feed import Rows, extend_rows
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(eq=False)
+class Client:
+    """One WebSocket. ``overlay`` = (device, session id) for a game overlay."""
+
+    queue: asyncio.Queue[str | None]
+    devices: frozenset[str] | None = None  # None: every device
+    overlay: tuple[str, int] | None = None
+    dropped: int = 0
+
+    def wants(self, device: str, session_id: int | None) -> bool:
+        if self.overlay is not None:
+            return self.overlay == (device, session_id)
+        return self.devices is None or device in self.devices
+
+    def send(self, text: str | None) -> None:
+        try:
+            self.queue.put_nowait(text)
+        except asyncio.QueueFull:
+            self.dropped += 1
+            if text is None:  # the end must get through: make room for it
+                self.queue.get_nowait()
+                self.queue.put_nowait(None)
+
+
+@dataclass
+class _Pending:
+    session_id: int | None = None
+    display: Rows = field(default_factory=dict)
+    overlay: Rows = field(default_factory=dict)
+    last_sent: float = -1e9
+    timer: asyncio.TimerHandle | None = None
+
+
+def dumps(msg: dict[str, Any]) -> str:
+    return orjson.dumps(msg).decode("utf-8")
+
+
+class Hub:
+    def __init__(self, max_rate_hz: float, queue_size: int) -> None:
+        self.min_interval = 1.0 / max_rate_hz
+        self.queue_size = queue_size
+        self.clients: set[Client] = set()
+        self._pending: dict[str, _Pending] = {}
+
+    def connect(
+        self, devices: Iterable[str] | None = None, overlay: tuple[str, int] | None = None
+    ) -> Client:
+        client = Client(
+            asyncio.Queue(self.queue_size),
+            frozenset(devices) if devices is not None else None,
+            overlay,
+        )
+        self.clients.add(client)
+        return client
+
+    def disconnect(self, client: Client) -> None:
+        self.clients.discard(client)
+
+    def interest(self, device: str, session_id: int | None) -> tuple[bool, bool]:
+        """(a therapist watches ``device``, an overlay of this session watches it)."""
+        therapist = overlay = False
+        for c in self.clients:
+            if c.overlay is None:
+                therapist = therapist or c.wants(device, session_id)
+            elif c.wants(device, session_id):
+                overlay = True
+        return therapist, overlay
+
+    def _send(self, device: str, session_id: int | None, msg: dict[str, Any],
+              overlay_msg: dict[str, Any] | None) -> None:
+        text = otext = None
+        for c in list(self.clients):
+            if not c.wants(device, session_id):
+                continue
+            if c.overlay is None:
+                text = text or dumps(msg)
+                c.send(text)
+            elif overlay_msg is not None:
+                otext = otext or dumps(overlay_msg)
+                c.send(otext)
+
+    def event(self, device: str, session_id: int | None, msg: dict[str, Any]) -> None:
+        """``state`` and ``cycle``: immediately, to therapists and the session's overlay
+        (rows pending under the rate cap follow at their time)."""
+        self._send(device, session_id, msg, msg)
+
+    def status(self, device: str, session_id: int | None, msg: dict[str, Any],
+               overlay_msg: dict[str, Any]) -> None:
+        self._send(device, session_id, msg, overlay_msg)
+
+    def rows(self, device: str, session_id: int | None, display: Rows | None,
+             overlay: Rows | None) -> None:
+        p = self._pending.get(device)
+        if p is None:
+            p = self._pending[device] = _Pending(session_id)
+        elif p.session_id != session_id:
+            self.flush(device)
+            p.session_id = session_id
+        if display:
+            extend_rows(p.display, display)
+        if overlay:
+            extend_rows(p.overlay, overlay)
+        wait = p.last_sent + self.min_interval - time.monotonic()
+        if wait <= 0:
+            self.flush(device)
+        elif p.timer is None:
+            p.timer = asyncio.get_running_loop().call_later(wait, self.flush, device)
+
+    def flush(self, device: str) -> None:
+        p = self._pending.get(device)
+        if p is None:
+            return
+        if p.timer is not None:
+            p.timer.cancel()
+            p.timer = None
+        if not p.display and not p.overlay:
+            return
+        msg = {"type": "estimate", "device": device, "rows": p.display} if p.display else None
+        omsg = {"type": "estimate", "device": device, "rows": p.overlay} if p.overlay else None
+        p.display, p.overlay = {}, {}
+        p.last_sent = time.monotonic()
+        text = otext = None
+        for c in list(self.clients):
+            if not c.wants(device, p.session_id):
+                continue
+            if c.overlay is None and msg is not None:
+                text = text or dumps(msg)
+                c.send(text)
+            elif c.overlay is not None and omsg is not None:
+                otext = otext or dumps(omsg)
+                c.send(otext)
+
+    def end_session(self, session_id: int) -> None:
+        """The session stopped: its overlay links are dead, close their sockets."""
+        for c in list(self.clients):
+            if c.overlay is not None and c.overlay[1] == session_id:
+                c.send(None)
+
+    def close_all(self) -> None:
+        for c in list(self.clients):
+            c.send(None)

@@ -1,0 +1,355 @@
+"""One task per device: its bounded queue, its current run, its outputs.
+
+Isolation: a device's messages wait in its own queue (full: dropped and counted, the
+ingest never waits); its task handles at most ``BATCH`` messages per turn before yielding,
+so a flooding device cannot starve the others; an exception in its pipeline resets that
+pipeline only. Session start/stop and therapist events travel through the same queue as
+the data, so they take effect at a defined point of the device's message order — the
+same point in the recording.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from sqlalchemy.ext.asyncio import AsyncSession
+
+from backend import wire
+from backend.analysis import estimate_payload
+from backend.db.sessions import record_cycle, store_nominal_shoulder
+from backend.deps import LiveUnavailable
+from backend.live import feed
+from backend.live.devices import DeviceStats
+from backend.live.files import SessionFiles
+from backend.live.hub import Hub
+from backend.live.ingest import RawMessage
+from backend.live.run import LiveRun, SessionContext, rows_ready
+from backend.live.store import DbWriter
+from backend.live.zenoh_io import ZenohIO
+from estimators.pipeline import Output
+from estimators.verdicts import CycleVerdict
+
+log = logging.getLogger(__name__)
+
+BATCH = 64  # messages per turn before the task yields to the other devices
+
+
+class RowsView(Protocol):
+    """The 3D view (:class:`backend.viz.Viz`): fed the dashboard's rows, never raises."""
+
+    @property
+    def selected(self) -> str | None: ...
+
+    def update(self, device: str, rows: feed.Rows) -> None: ...
+
+
+@dataclass(eq=False)
+class Command:
+    future: asyncio.Future[Any] = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.future = asyncio.get_running_loop().create_future()
+
+
+@dataclass(eq=False)
+class StartSession(Command):
+    context: SessionContext
+    files: SessionFiles
+
+
+@dataclass(eq=False)
+class StopSession(Command):
+    session_id: int
+
+
+@dataclass(eq=False)
+class SetNominal(Command):
+    session_id: int
+    point: list[float] | None
+    from_estimate: bool
+
+
+def session_summary(report: dict[str, Any]) -> dict[str, Any]:
+    """What the sessions table keeps of a report (the report itself is a file)."""
+    return {
+        **report["summary"],
+        "heading_converged_t": report["heading"]["converged_t"],
+        "shoulder_displacement_m": report["shoulder_displacement_m"],
+        "rejected_messages": sum(report["data_quality"]["rejected"].values()),
+    }
+
+
+def _finite(x: float) -> float | None:
+    return x if math.isfinite(x) else None
+
+
+class DeviceWorker:
+    def __init__(
+        self,
+        name: str,
+        stats: DeviceStats,
+        *,
+        prefix: str,
+        zio: ZenohIO | None,
+        hub: Hub,
+        db: DbWriter,
+        max_items: int,
+        max_bytes: int,
+        on_change: Callable[[str], None],
+        view: Callable[[], RowsView | None] = lambda: None,
+    ) -> None:
+        self.name = name
+        self.stats = stats
+        self.prefix = prefix
+        self._zio = zio
+        self._hub = hub
+        self._db = db
+        self._max_items = max_items
+        self._max_bytes = max_bytes
+        self._on_change = on_change
+        self._view = view
+        self.live = LiveRun(name, prefix, stats)
+        self._queue: deque[RawMessage | Command] = deque()
+        self._bytes = 0
+        self._wake = asyncio.Event()
+        self._task: asyncio.Task[None] | None = None
+        self.poll_due = False
+        self.internal_errors = 0
+
+    # ------------------------------------------------------------------ producer side
+
+    def start(self) -> None:
+        self._task = asyncio.create_task(self._loop(), name=f"device:{self.name}")
+
+    async def close(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+            self._task = None
+
+    def offer(self, msg: RawMessage) -> None:
+        st = self.stats
+        st.messages += 1
+        st.bytes += msg.size
+        st.last_seen = msg.arrival
+        if msg.payload is None:
+            st.reject("too_large")  # not kept, not recorded: bounded memory and storage
+            return
+        if len(self._queue) >= self._max_items or self._bytes + msg.size > self._max_bytes:
+            st.dropped += 1
+            return
+        self._queue.append(msg)
+        self._bytes += msg.size
+        self._wake.set()
+
+    def command(self, cmd: Command) -> asyncio.Future[Any]:
+        """Commands bypass the bound (they come from the REST layer, not from devices)."""
+        self._queue.append(cmd)
+        self._wake.set()
+        return cmd.future
+
+    def request_poll(self) -> None:
+        """Timer: poll what was fed but produced no row (e.g. a device sending IMU only)."""
+        if self.live.fed_since_poll:
+            self.poll_due = True
+            self._wake.set()
+
+    @property
+    def queued(self) -> int:
+        return len(self._queue)
+
+    # ------------------------------------------------------------------ the task
+
+    async def _loop(self) -> None:
+        while True:
+            await self._wake.wait()
+            self._wake.clear()
+            try:
+                while self._queue:
+                    self._step()
+                    await asyncio.sleep(0)
+                if self.poll_due:
+                    self.poll_due = False
+                    if self.live.fed_since_poll:
+                        self._emit(self.live.poll())
+            except Exception:  # a bug must not end the device's task
+                self.internal_errors += 1
+                self.stats.reject("internal_error")
+                if self.internal_errors <= 3:
+                    log.exception("device %s: worker error", self.name)
+
+    def _step(self) -> None:
+        n = 0
+        while self._queue and n < BATCH:
+            item = self._queue.popleft()
+            n += 1
+            if isinstance(item, Command):
+                self._poll_if_ready()
+                self._command(item)
+                continue
+            self._bytes -= item.size
+            try:
+                self.live.ingest(item)
+            except Exception:  # recorder I/O and the like: count, keep the device going
+                self.internal_errors += 1
+                self.stats.reject("internal_error")
+                if self.internal_errors <= 3:
+                    log.exception("device %s: message not processed", self.name)
+        self._poll_if_ready()
+
+    def _poll_if_ready(self) -> None:
+        live = self.live
+        if live.fed_since_poll and rows_ready(live.pipeline):
+            self._emit(live.poll())
+
+    # ------------------------------------------------------------------ outputs
+
+    def _emit(self, out: Output | None) -> None:
+        if out is None:
+            return
+        live, dev = self.live, self.name
+        sid = live.session_id
+        pubs = self._zio.publishers(dev) if self._zio is not None else None
+        if out.n:
+            contract = estimate_payload(out.rows)
+            if pubs is not None:
+                try:
+                    pubs.estimate.put(wire.dumps(contract))
+                except Exception:
+                    log.warning("device %s: estimate not published", dev, exc_info=True)
+            therapist, overlay = self._hub.interest(dev, sid)
+            view = self._view()
+            if view is not None and view.selected != dev:
+                view = None  # only the device on screen: ~85 µs a row is too much for 50
+            display = (
+                feed.display_rows(out.rows, contract) if therapist or view is not None else None
+            )
+            if therapist or overlay:
+                self._hub.rows(
+                    dev, sid, display if therapist else None,
+                    feed.overlay_rows(out.rows, contract) if overlay else None,
+                )
+            if view is not None and display is not None:
+                view.update(dev, display)
+            converged = bool(out.rows["heading_converged"][-1])
+            if converged != live.converged:
+                live.converged = converged
+                self._on_change(dev)
+            point = live.nominal_change(out)
+            if point is not None and sid is not None and live.nominal_source not in (
+                "params", "therapist"  # stored by the sessions API already
+            ):
+                self._store_nominal(sid, list(point), live.nominal_source)
+        index = live.cycle_index
+        for fb in out.feedback:
+            if pubs is not None:
+                try:
+                    pubs.feedback.put(wire.dumps(fb))
+                except Exception:
+                    log.warning("device %s: feedback not published", dev, exc_info=True)
+            if fb["type"] == "state":
+                self._hub.event(dev, sid, feed.state_message(dev, fb["t"], fb["state"]))
+            elif fb["type"] == "cycle":
+                self._hub.event(dev, sid, feed.cycle_message(dev, fb, index))
+                index += 1
+        for v in out.cycles:
+            if v.compensatory is None:
+                continue
+            if sid is not None:
+                self._store_cycle(sid, v, live.cycle_index)
+            live.cycle_index += 1
+
+    def _store_cycle(self, sid: int, v: CycleVerdict, index: int) -> None:
+        async def op(db: AsyncSession) -> None:
+            await record_cycle(
+                db, sid, start=v.start, end=v.end, outside_fraction=v.outside_fraction,
+                compensatory=bool(v.compensatory), coverage=_finite(v.coverage),
+                peak_displacement_m=_finite(v.max_displacement_m), index=index,
+            )
+
+        self._db.submit(f"cycle {index} of session {sid}", op)
+
+    def _store_nominal(self, sid: int, point: list[float], source: str) -> None:
+        async def op(db: AsyncSession) -> None:
+            await store_nominal_shoulder(db, sid, point, source)  # type: ignore[arg-type]
+
+        self._db.submit(f"nominal shoulder of session {sid}", op)
+
+    # ------------------------------------------------------------------ commands
+
+    def _command(self, cmd: Command) -> None:
+        if cmd.future.done():  # the requester gave up (timeout)
+            return
+        try:
+            result: Any = None
+            if isinstance(cmd, StartSession):
+                self._start(cmd)
+            elif isinstance(cmd, StopSession):
+                result = self._stop(cmd.session_id)
+            elif isinstance(cmd, SetNominal):
+                result = self._nominal(cmd)
+            else:  # pragma: no cover
+                raise TypeError(type(cmd).__name__)
+        except Exception as exc:
+            cmd.future.set_exception(exc)
+        else:
+            cmd.future.set_result(result)
+
+    def _start(self, cmd: StartSession) -> None:
+        if self.live.session is not None:  # not after the DB's one-active-session rule
+            log.error("device %s: session %s replaced by %s", self.name,
+                      self.live.session_id, cmd.context.info.id)
+            self._stop(self.live.session.info.id)
+        self.live = LiveRun(self.name, self.prefix, self.stats, cmd.context, cmd.files)
+        self._on_change(self.name)
+
+    def _stop(self, session_id: int) -> dict[str, Any] | None:
+        live = self.live
+        if live.session_id != session_id:
+            return None
+        out, report = live.finish()
+        self._emit(out)
+        self._hub.flush(self.name)
+        assert live.files is not None
+        live.files.close(report)
+        self.live = LiveRun(self.name, self.prefix, self.stats)  # a fresh preview
+        self._hub.end_session(session_id)
+        self._on_change(self.name)
+        return session_summary(report)
+
+    def _nominal(self, cmd: SetNominal) -> list[float] | None:
+        live = self.live
+        if live.session_id != cmd.session_id:
+            raise LiveUnavailable("the device is not running this session")
+        result: list[float] | None
+        payload: dict[str, Any]
+        if cmd.from_estimate:
+            result = live.shoulder_estimate()
+            if result is None:
+                raise LiveUnavailable("no converged shoulder estimate yet")
+            payload, source = {"type": "nominal_reset"}, "estimate"
+        elif cmd.point is not None:
+            result = [float(x) for x in cmd.point]
+            payload, source = {"type": "shoulder_reference", "point": result}, "therapist"
+        else:
+            result = None
+            payload, source = {"type": "nominal_reset"}, "auto"
+        # into the recording and the pipeline like any event, so re-analysis reproduces it
+        data = live.event(payload)
+        live.nominal_source = source
+        live.nominal = None
+        pubs = self._zio.publishers(self.name) if self._zio is not None else None
+        if pubs is not None and data is not None:  # independent recorders see it too
+            try:
+                pubs.event.put(data)
+            except Exception:
+                log.warning("device %s: event not published", self.name, exc_info=True)
+        return result

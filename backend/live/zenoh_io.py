@@ -1,0 +1,188 @@
+"""The service's one embedded Zenoh session: the subscription in, estimates and feedback out.
+
+Zenoh calls the subscriber callback on its own threads. The callback only appends
+``(key, payload bytes, size, arrival time)`` to a bounded buffer and, when the buffer was
+empty, schedules one drain on the asyncio loop with ``loop.call_soon_threadsafe``: no
+decoding, no locks, no Zenoh calls. A full buffer drops and counts; ingest never blocks.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import zenoh
+
+from backend import keys
+
+log = logging.getLogger(__name__)
+
+RawSample = tuple[str, bytes | None, int, float]
+
+# Room for bursts while the loop is busy; bytes bound it too (payloads reach 1 MiB).
+BUFFER_ITEMS = 1 << 16
+BUFFER_BYTES = 256 << 20
+# Zenoh's own per-message ceiling (default 1 GiB): far above the contract's 1 MiB, low
+# enough that a hostile peer cannot make the router side allocate without bound.
+RX_MAX_MESSAGE_BYTES = 16 << 20
+
+
+def make_config(
+    *, listen: str | None = None, connect: str | None = None, mode: str | None = None
+) -> zenoh.Config:
+    """Explicit endpoints only: multicast scouting is off so that a clinic's services,
+    test runs and devices on one network never discover each other by accident."""
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", json.dumps(mode or ("client" if connect and not listen else "peer")))
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    if listen:
+        cfg.insert_json5("listen/endpoints", json.dumps([listen]))
+    if connect:
+        cfg.insert_json5("connect/endpoints", json.dumps([connect]))
+    cfg.insert_json5("transport/link/rx/max_message_size", str(RX_MAX_MESSAGE_BYTES))
+    return cfg
+
+
+@dataclass
+class DevicePublishers:
+    estimate: zenoh.Publisher
+    feedback: zenoh.Publisher
+    event: zenoh.Publisher
+
+
+class ZenohIO:
+    def __init__(
+        self,
+        config: zenoh.Config,
+        prefix: str,
+        loop: asyncio.AbstractEventLoop,
+        on_batch: Callable[[list[RawSample]], None],
+        on_token: Callable[[str, bool], None],
+        max_payload: int,
+    ) -> None:
+        self._config = config
+        self.prefix = prefix
+        self._loop = loop
+        self._on_batch = on_batch
+        self._on_token = on_token
+        self._max_payload = max_payload
+        self._buf: deque[RawSample] = deque()
+        self._buf_bytes = 0
+        self._bytes_lock = threading.Lock()  # held for an addition only
+        self._scheduled = False
+        self.overflow = 0  # samples dropped because the loop fell behind
+        self._session: zenoh.Session | None = None
+        self._subs: list[zenoh.Subscriber[None]] = []
+        self._pubs: dict[str, DevicePublishers] = {}
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def open(self) -> None:
+        self._session = zenoh.open(self._config)
+        self._subs.append(
+            self._session.declare_subscriber(
+                keys.subscription(self.prefix),
+                self._on_sample,
+                allowed_origin=zenoh.Locality.REMOTE,  # not our own estimates
+            )
+        )
+        self._subs.append(
+            self._session.liveliness().declare_subscriber(
+                f"{self.prefix}/*/**", self._on_liveliness, history=True
+            )
+        )
+
+    def close(self) -> None:
+        session, self._session = self._session, None
+        if session is None:
+            return
+        for sub in self._subs:
+            sub.undeclare()  # type: ignore[no-untyped-call]
+        for pubs in self._pubs.values():
+            pubs.estimate.undeclare()  # type: ignore[no-untyped-call]
+            pubs.feedback.undeclare()  # type: ignore[no-untyped-call]
+            pubs.event.undeclare()  # type: ignore[no-untyped-call]
+        self._subs.clear()
+        self._pubs.clear()
+        session.close()  # type: ignore[no-untyped-call]
+
+    # ------------------------------------------------------------------ Zenoh threads
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        if sample.kind != zenoh.SampleKind.PUT:
+            return
+        size = len(sample.payload)
+        keep = size <= self._max_payload  # too large: keep only the fact, not the bytes
+        with self._bytes_lock:
+            if len(self._buf) >= BUFFER_ITEMS or (keep and self._buf_bytes + size > BUFFER_BYTES):
+                self.overflow += 1
+                return
+            if keep:
+                self._buf_bytes += size
+        data = sample.payload.to_bytes() if keep else None
+        self._buf.append((str(sample.key_expr), data, size, time.time()))
+        if not self._scheduled:
+            self._scheduled = True
+            with contextlib.suppress(RuntimeError):  # loop closed during shutdown
+                self._loop.call_soon_threadsafe(self._drain)
+
+    def _on_liveliness(self, sample: zenoh.Sample) -> None:
+        parts = str(sample.key_expr).split("/")
+        pre = self.prefix.split("/")
+        if len(parts) <= len(pre) or parts[: len(pre)] != pre:
+            return
+        device = parts[len(pre)]
+        if not keys.DEVICE_RE.fullmatch(device):
+            return
+        alive = sample.kind == zenoh.SampleKind.PUT
+        with contextlib.suppress(RuntimeError):
+            self._loop.call_soon_threadsafe(self._on_token, device, alive)
+
+    # ------------------------------------------------------------------ loop side
+
+    def _drain(self) -> None:
+        # reset first: a sample appended from now on schedules another drain
+        self._scheduled = False
+        buf = self._buf
+        batch: list[RawSample] = []
+        nbytes = 0
+        while buf:
+            item = buf.popleft()
+            batch.append(item)
+            if item[1] is not None:
+                nbytes += item[2]
+        with self._bytes_lock:
+            self._buf_bytes -= nbytes
+        if batch:
+            self._on_batch(batch)
+
+    def publishers(self, device: str) -> DevicePublishers | None:
+        """Declared once per device, on its first output."""
+        pubs = self._pubs.get(device)
+        if pubs is None and self._session is not None:
+            s = self._session
+
+            def declare(key: str) -> zenoh.Publisher:
+                return s.declare_publisher(
+                    key,
+                    encoding=zenoh.Encoding.APPLICATION_JSON,
+                    # a slow subscriber loses outputs; it never stalls the pipelines
+                    congestion_control=zenoh.CongestionControl.DROP,
+                    express=True,  # no batching delay on the feedback loop
+                    allowed_destination=zenoh.Locality.REMOTE,
+                )
+
+            pubs = DevicePublishers(
+                estimate=declare(keys.estimate(device, self.prefix)),
+                feedback=declare(keys.feedback(device, self.prefix)),
+                event=declare(keys.event(device, self.prefix)),
+            )
+            self._pubs[device] = pubs
+        return pubs

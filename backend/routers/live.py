@@ -1,0 +1,104 @@
+"""Live feeds over WebSocket: the therapists' dashboard and the patient's game overlay.
+
+The message protocol is documented in :mod:`backend.live.feed`. Refusals (no or bad
+credentials, an overlay link whose session ended) close the handshake with 1008; a
+service running without its live side closes with 1013 (try again later).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from typing import Annotated
+
+from fastapi import APIRouter, Query, WebSocket, WebSocketException, status
+from starlette.websockets import WebSocketDisconnect
+
+from backend import keys
+from backend.auth.guards import CurrentTherapist, OverlayAccess
+from backend.deps import State
+from backend.live.hub import Client, dumps
+from backend.live.manager import LiveManager
+
+router = APIRouter(tags=["live"])
+
+MAX_FILTER = 256
+
+
+def _manager(state: State) -> LiveManager:
+    if not isinstance(state.live, LiveManager):
+        raise WebSocketException(status.WS_1013_TRY_AGAIN_LATER, "live side not running")
+    return state.live
+
+
+def _device_filter(devices: str | None) -> list[str] | None:
+    if devices is None:
+        return None
+    names = [d for d in (x.strip() for x in devices.split(",")) if d]
+    if len(names) > MAX_FILTER or not all(keys.DEVICE_RE.fullmatch(d) for d in names):
+        raise WebSocketException(status.WS_1008_POLICY_VIOLATION, "bad devices filter")
+    return names
+
+
+async def _pump(websocket: WebSocket, client: Client) -> None:
+    """Send the client's queue; return when either side ends."""
+
+    async def send() -> None:
+        while True:
+            text = await client.queue.get()
+            if text is None:
+                await websocket.close(status.WS_1000_NORMAL_CLOSURE, "session ended")
+                return
+            await websocket.send_text(text)
+
+    async def receive() -> None:
+        with contextlib.suppress(WebSocketDisconnect):
+            while True:  # nothing is expected from the client; this notices it leaving
+                msg = await websocket.receive()
+                if msg["type"] == "websocket.disconnect":
+                    return
+
+    tasks = [asyncio.create_task(send()), asyncio.create_task(receive())]
+    try:
+        await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        for t in tasks:
+            t.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+
+
+@router.websocket("/ws/live")
+async def live_feed(
+    websocket: WebSocket,
+    therapist: CurrentTherapist,
+    state: State,
+    devices: Annotated[str | None, Query(max_length=20_000)] = None,
+) -> None:
+    """Every device (or those in ``?devices=a,b``): hello, status, estimate, state, cycle."""
+    manager = _manager(state)
+    names = _device_filter(devices)
+    await websocket.accept()
+    client = manager.hub.connect(devices=names)
+    try:
+        client.send(dumps({"type": "hello",
+                           "devices": names if names is not None else manager.device_names()}))
+        manager.send_initial(client)
+        await _pump(websocket, client)
+    finally:
+        manager.hub.disconnect(client)
+
+
+@router.websocket("/ws/overlay")
+async def overlay_feed(websocket: WebSocket, grant: OverlayAccess, state: State) -> None:
+    """One device during one session, as the overlay link allows: state, cycle, a minimal
+    status and the rows the game draws."""
+    manager = _manager(state)
+    await websocket.accept()
+    client = manager.hub.connect(overlay=(grant.device, grant.session_id))
+    try:
+        if not manager.is_running(grant.session_id, grant.device):
+            client.send(None)  # stopped between the token check and now
+        manager.send_initial(client)
+        await _pump(websocket, client)
+    finally:
+        manager.hub.disconnect(client)

@@ -1,0 +1,393 @@
+"""Live latency and capacity: N simulated devices stream in real time into ``rehab serve``.
+
+Three processes besides this one: the service (``rehab serve``, SQLite, a session on every
+device so recording and cycle storage are part of the load), a publisher (all devices:
+100 Hz IMU in messages of 4 samples, 25 Hz robot, each device at its own phase), and a
+subscriber (``rehab/*/estimate`` on Zenoh, and the therapists' WebSocket feed).
+
+The publisher notes the wall time at which it sent each robot sample, the subscriber the
+wall time at which the estimate row of that sample arrived (matched by device and ``t``).
+Latency = arrival − send, same machine, same clock. It includes the wait for the IMU
+message that covers the robot sample (the pipeline needs both; up to one IMU message
+period, 40 ms at 100 Hz × 4) and, on the WebSocket, the 30 Hz decimation.
+
+    python benchmarks/latency.py                       # 50 devices, 120 s
+    python benchmarks/latency.py --devices 20 --duration 60 --json out.json
+    python benchmarks/latency.py --sweep --duration 40 # largest N with p99 ≤ 50 ms
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+TARGET_P99_MS = 50.0
+WARMUP_S = 10.0  # excluded from the steady-state figures (process start, first polls)
+CLK_TCK = os.sysconf("SC_CLK_TCK")
+PAGE = os.sysconf("SC_PAGE_SIZE")
+
+
+def free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port: int = s.getsockname()[1]
+        return port
+
+
+def device_name(i: int) -> str:
+    return f"bench{i:03d}"
+
+
+# --------------------------------------------------------------------------- publisher
+
+
+def publisher(args: argparse.Namespace) -> None:
+    from simulator import SimConfig, simulate
+    from simulator.publish import Publisher, prepare
+
+    sim = simulate(SimConfig(seed=1, duration_s=args.duration + 1.0, device="tmpl"))
+    template = prepare(sim.messages)
+    n = args.devices
+    schedule: list[tuple[float, int, str, bytes, float | None]] = []
+    for i in range(n):
+        name = device_name(i)
+        phase = 0.04 * i / n  # devices are not in lockstep
+        for m in template:
+            key = m.key.replace("/tmpl/", f"/{name}/", 1)
+            robot_t = m.at if m.key.endswith("/robot") else None
+            schedule.append((m.at + phase, i, key, m.payload, robot_t))
+    schedule.sort(key=lambda x: (x[0], x[1]))
+    pub = Publisher.connect(args.endpoint)
+    for i in range(n):
+        pub.announce(device_name(i))
+    for _, _, key, _, _ in schedule[: n * 200]:
+        pub.declare_key(key)
+    ok = pub.wait_for_subscribers(30.0)
+    print("ready" if ok else "ready (no subscriber!)", flush=True)
+    sys.stdin.readline()  # "go"
+    sent: list[list[tuple[float, float]]] = [[] for _ in range(n)]
+    t0 = schedule[0][0]
+    base = time.monotonic() + 0.2
+    for at, i, key, payload, robot_t in schedule:
+        delay = base + (at - t0) - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        pub.put(key, payload)
+        if robot_t is not None:
+            sent[i].append((robot_t, time.time()))
+    late = time.monotonic() - (base + schedule[-1][0] - t0)
+    Path(args.out).write_text(json.dumps({"sent": sent, "messages": len(schedule),
+                                          "late_s": late}))
+    time.sleep(1.0)
+    pub.close()
+    print("done", flush=True)
+
+
+# --------------------------------------------------------------------------- subscriber
+
+
+def subscriber(args: argparse.Namespace) -> None:
+    import orjson
+    import zenoh
+    from websockets.sync.client import connect
+
+    from backend.live.zenoh_io import make_config
+
+    zrecv: dict[str, list[tuple[float, float]]] = {}
+    wrecv: dict[str, list[tuple[float, float]]] = {}
+    lock = threading.Lock()
+
+    def on_estimate(sample: zenoh.Sample) -> None:
+        now = time.time()
+        device = str(sample.key_expr).split("/")[1]
+        rows = orjson.loads(sample.payload.to_bytes())
+        with lock:
+            zrecv.setdefault(device, []).extend((t, now) for t in rows["t"])
+
+    session = zenoh.open(make_config(connect=args.endpoint, mode="peer"))
+    sub = session.declare_subscriber("rehab/*/estimate", on_estimate)
+    stop = threading.Event()
+
+    def websocket() -> None:
+        url = args.url.replace("http://", "ws://") + "/api/ws/live"
+        with connect(url, additional_headers={"Authorization": f"Bearer {args.token}"},
+                     max_size=None) as ws:
+            while not stop.is_set():
+                try:
+                    text = ws.recv(timeout=0.5)
+                except TimeoutError:
+                    continue
+                now = time.time()
+                msg = orjson.loads(text)
+                if msg["type"] == "estimate":
+                    wrecv.setdefault(msg["device"], []).extend((t, now) for t in msg["rows"]["t"])
+
+    ws_thread = threading.Thread(target=websocket, daemon=True)
+    ws_thread.start()
+    print("ready", flush=True)
+    sys.stdin.readline()  # "stop"
+    stop.set()
+    ws_thread.join(5)
+    sub.undeclare()  # type: ignore[no-untyped-call]
+    session.close()  # type: ignore[no-untyped-call]
+    with lock:
+        Path(args.out).write_text(json.dumps({"zenoh": zrecv, "websocket": wrecv}))
+    print("done", flush=True)
+
+
+# --------------------------------------------------------------------------- orchestration
+
+
+def proc_sample(pid: int) -> tuple[float, int]:
+    """(CPU seconds used so far, resident bytes) of a process."""
+    stat = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    cpu = (int(stat[11]) + int(stat[12])) / CLK_TCK
+    rss = int(Path(f"/proc/{pid}/statm").read_text().split()[1]) * PAGE
+    return cpu, rss
+
+
+def latencies(sent: list[list[tuple[float, float]]], recv: dict[str, list[tuple[float, float]]],
+              t_start: float, warmup: float) -> tuple[np.ndarray, int, int]:
+    """Latencies (s) of the steady state, and (robot samples sent, rows received) overall."""
+    lat: list[float] = []
+    n_sent = n_recv = 0
+    for i, rows in enumerate(sent):
+        got = dict(recv.get(device_name(i), []))
+        n_sent += len(rows)
+        n_recv += sum(1 for t, _ in rows if t in got)
+        lat.extend(got[t] - w for t, w in rows if t in got and w - t_start >= warmup)
+    return np.array(lat), n_sent, n_recv
+
+
+def stats_ms(a: np.ndarray) -> dict[str, float | None]:
+    if not len(a):
+        return {"p50": None, "p90": None, "p99": None, "max": None}
+    p50, p90, p99 = np.percentile(a, [50, 90, 99]) * 1e3
+    return {"p50": round(float(p50), 2), "p90": round(float(p90), 2),
+            "p99": round(float(p99), 2), "max": round(float(a.max() * 1e3), 2)}
+
+
+def run(n: int, duration: float, sessions: bool = True, verbose: bool = True) -> dict[str, Any]:
+    import httpx
+
+    from backend.auth.first_admin import read_admin_credentials
+    from backend.settings import Settings
+
+    def say(*a: object) -> None:
+        if verbose:
+            print(f"[{n} devices]", *a, file=sys.stderr, flush=True)
+
+    work = Path(tempfile.mkdtemp(prefix="rehab-bench-"))
+    port, zport = free_port(), free_port()
+    endpoint, url = f"tcp/127.0.0.1:{zport}", f"http://127.0.0.1:{port}"
+    service = subprocess.Popen(
+        [sys.executable, "-m", "backend.cli", "serve", "--host", "127.0.0.1", "--port", str(port),
+         "--zenoh-listen", endpoint, "--data-dir", str(work / "data"), "--log-level", "warning"],
+        cwd=REPO, stdout=subprocess.DEVNULL,
+    )
+    procs: list[subprocess.Popen[str]] = []
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                if httpx.get(url + "/api/health", timeout=1).status_code == 200:
+                    break
+            except httpx.HTTPError:
+                pass
+            if time.monotonic() > deadline or service.poll() is not None:
+                raise RuntimeError("service did not start")
+            time.sleep(0.2)
+        creds = read_admin_credentials(Settings(data_dir=work / "data"))
+        assert creds is not None
+        api = httpx.Client(base_url=url, timeout=60)
+        token = api.post("/api/auth/login", json={"username": creds.username,
+                                                  "password": creds.password}).json()["access_token"]
+        api.cookies.clear()
+        api.headers["Authorization"] = f"Bearer {token}"
+        me = [sys.executable, __file__]
+        sub = subprocess.Popen(
+            [*me, "--role", "subscriber", "--endpoint", endpoint, "--url", url, "--token", token,
+             "--out", str(work / "sub.json")],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=REPO)
+        procs.append(sub)
+        assert sub.stdout is not None and sub.stdin is not None
+        sub.stdout.readline()
+        pub = subprocess.Popen(
+            [*me, "--role", "publisher", "--endpoint", endpoint, "--devices", str(n),
+             "--duration", str(duration), "--out", str(work / "pub.json")],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=REPO)
+        procs.append(pub)
+        assert pub.stdout is not None and pub.stdin is not None
+        say("publisher:", pub.stdout.readline().strip())
+        deadline = time.monotonic() + 60
+        while len(api.get("/api/devices").json()) < n:
+            if time.monotonic() > deadline:
+                raise RuntimeError("devices not registered")
+            time.sleep(0.2)
+        if sessions:
+            for i in range(n):
+                pid = api.post("/api/patients", json={"code": f"bench-{i}",
+                                                      "affected_side": "right"}).json()["id"]
+                r = api.post("/api/sessions", json={"patient_id": pid, "device": device_name(i)})
+                assert r.status_code == 201, r.text
+        time.sleep(1.0)
+        cpu0, rss0 = proc_sample(service.pid)
+        say(f"idle service: {rss0 / 2**20:.0f} MiB; streaming {duration:.0f} s")
+        t_start = time.time()
+        pub.stdin.write("go\n")
+        pub.stdin.flush()
+        peak = rss0
+        samples: list[tuple[float, float, int]] = []
+        while pub.poll() is None:
+            time.sleep(1.0)
+            cpu, rss = proc_sample(service.pid)
+            samples.append((time.time(), cpu, rss))
+            peak = max(peak, rss)
+        wall = time.time() - t_start
+        cpu1, rss1 = proc_sample(service.pid)
+        time.sleep(2.0)  # the last estimates
+        sub.stdin.write("stop\n")
+        sub.stdin.flush()
+        sub.wait(60)
+        time.sleep(1.5)  # device stats are flushed once a second
+        devices = {d["name"]: d for d in api.get("/api/devices").json()}
+        pubres = json.loads((work / "pub.json").read_text())
+        subres = json.loads((work / "sub.json").read_text())
+        received = sum((d.get("stats") or {}).get("ingest", {}).get("messages", 0)
+                       for d in devices.values())
+        dropped = sum((d.get("stats") or {}).get("ingest", {}).get("dropped", 0)
+                      for d in devices.values())
+        zl, z_sent, z_recv = latencies(pubres["sent"], subres["zenoh"], t_start, WARMUP_S)
+        wl, _, w_recv = latencies(pubres["sent"], subres["websocket"], t_start, WARMUP_S)
+        zl_all, _, _ = latencies(pubres["sent"], subres["zenoh"], t_start, 0.0)
+        steady = [s for s in samples if s[0] - t_start >= WARMUP_S]
+        cpu_steady = ((steady[-1][1] - steady[0][1]) / (steady[-1][0] - steady[0][0])
+                      if len(steady) > 2 else None)
+        result = {
+            "devices": n, "duration_s": duration, "sessions": sessions,
+            "messages_published": pubres["messages"], "messages_received": received,
+            "messages_lost": pubres["messages"] - received, "messages_dropped": dropped,
+            "robot_samples": z_sent, "estimates_received_zenoh": z_recv,
+            "estimates_received_websocket": w_recv,
+            "publisher_late_s": round(pubres["late_s"], 3),
+            "latency_zenoh_ms": stats_ms(zl), "latency_zenoh_all_ms": stats_ms(zl_all),
+            "latency_websocket_ms": stats_ms(wl),
+            "service_cpu_percent": round(100 * (cpu1 - cpu0) / wall, 1),
+            "service_cpu_percent_steady": None if cpu_steady is None else round(100 * cpu_steady, 1),
+            "service_rss_idle_mib": round(rss0 / 2**20, 1),
+            "service_rss_end_mib": round(rss1 / 2**20, 1),
+            "service_rss_peak_mib": round(peak / 2**20, 1),
+            "memory_per_device_mib": round((rss1 - rss0) / n / 2**20, 2),
+            "cpu_per_device_percent": round(100 * (cpu1 - cpu0) / wall / n, 2),
+        }
+        result["meets_target"] = bool(
+            result["messages_lost"] == 0 and z_recv == z_sent
+            and result["latency_zenoh_ms"]["p99"] is not None
+            and result["latency_zenoh_ms"]["p99"] <= TARGET_P99_MS
+        )
+        say(json.dumps(result))
+        api.close()
+        return result
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+        service.send_signal(signal.SIGTERM)
+        try:
+            service.wait(60)
+        except subprocess.TimeoutExpired:
+            service.kill()
+        import shutil
+
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def sweep(duration: float, start: int, sessions: bool) -> dict[str, Any]:
+    """Grow N while the target holds, then bisect between the last pass and first fail."""
+    runs: dict[int, dict[str, Any]] = {}
+
+    def ok(n: int) -> bool:
+        if n not in runs:
+            runs[n] = run(n, duration, sessions)
+        return bool(runs[n]["meets_target"])
+
+    lo, hi = 0, start
+    while ok(hi):
+        lo, hi = hi, hi * 2
+    while hi - lo > max(1, lo // 10):
+        mid = (lo + hi) // 2
+        if ok(mid):
+            lo = mid
+        else:
+            hi = mid
+    return {"capacity_devices": lo, "target_p99_ms": TARGET_P99_MS,
+            "runs": [runs[k] for k in sorted(runs)]}
+
+
+def report(r: dict[str, Any]) -> str:
+    z, w = r["latency_zenoh_ms"], r["latency_websocket_ms"]
+    return (
+        f"{r['devices']} devices, {r['duration_s']:.0f} s: lost {r['messages_lost']} of "
+        f"{r['messages_published']} messages ({r['messages_dropped']} dropped), estimates "
+        f"{r['estimates_received_zenoh']}/{r['robot_samples']}; latency to Zenoh p50 "
+        f"{z['p50']} ms, p99 {z['p99']} ms (max {z['max']}); to WebSocket p50 {w['p50']} ms, "
+        f"p99 {w['p99']} ms; service CPU {r['service_cpu_percent']} % "
+        f"({r['cpu_per_device_percent']} %/device), RSS {r['service_rss_idle_mib']} → "
+        f"{r['service_rss_end_mib']} MiB ({r['memory_per_device_mib']} MiB/device)"
+        f" {'OK' if r['meets_target'] else 'FAILS p99 <= 50 ms'}"
+    )
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--devices", type=int, default=50)
+    ap.add_argument("--duration", type=float, default=120.0, metavar="S")
+    ap.add_argument("--sweep", action="store_true", help="find the largest N meeting p99 ≤ 50 ms")
+    ap.add_argument("--sweep-start", type=int, default=10)
+    ap.add_argument("--no-sessions", action="store_true",
+                    help="devices stream without a session (no recording, no cycle storage)")
+    ap.add_argument("--json", metavar="FILE", help="write the results as JSON")
+    # internal: the publisher and subscriber processes
+    ap.add_argument("--role", choices=["publisher", "subscriber"], help=argparse.SUPPRESS)
+    ap.add_argument("--endpoint", help=argparse.SUPPRESS)
+    ap.add_argument("--url", help=argparse.SUPPRESS)
+    ap.add_argument("--token", help=argparse.SUPPRESS)
+    ap.add_argument("--out", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.role == "publisher":
+        publisher(args)
+        return 0
+    if args.role == "subscriber":
+        subscriber(args)
+        return 0
+    if args.sweep:
+        result = sweep(args.duration, args.sweep_start, not args.no_sessions)
+        for r in result["runs"]:
+            print(report(r))
+        print(f"capacity: {result['capacity_devices']} devices at p99 ≤ {TARGET_P99_MS:.0f} ms")
+    else:
+        result = run(args.devices, args.duration, not args.no_sessions)
+        print(report(result))
+    if args.json:
+        Path(args.json).write_text(json.dumps(result, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

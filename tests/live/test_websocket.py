@@ -1,0 +1,160 @@
+"""The WebSocket feeds: the protocol the dashboard and the overlay code against, the 30 Hz
+cap without losing rows, and who may read what."""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from typing import Any
+
+import pytest
+from websockets.exceptions import ConnectionClosed, InvalidStatus
+from websockets.sync.client import ClientConnection, connect
+
+from backend.live.feed import DISPLAY_EXTRA, OVERLAY_COLUMNS
+from simulator import SimConfig, simulate
+from simulator.publish import play, prepare
+from tests.live.conftest import Service, wait_for
+
+CONTRACT_COLUMNS = (
+    "t", "elbow_x", "elbow_y", "elbow_z", "shoulder_x", "shoulder_y", "shoulder_z",
+    "elbow_angle_deg", "heading_offset_deg", "heading_converged", "shoulder_displacement_m",
+    "state",
+)
+
+
+class Listener:
+    """Collects a socket's messages in a thread (with their arrival times)."""
+
+    def __init__(self, ws: ClientConnection) -> None:
+        self.ws = ws
+        self.messages: list[tuple[float, dict[str, Any]]] = []
+        self.closed: tuple[int, str] | None = None
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            for text in self.ws:
+                self.messages.append((time.monotonic(), json.loads(text)))
+        except ConnectionClosed:
+            pass
+        code = self.ws.close_code
+        self.closed = (code, self.ws.close_reason or "") if code is not None else (1006, "")
+
+    def of(self, kind: str, device: str | None = None) -> list[dict[str, Any]]:
+        return [m for _, m in self.messages
+                if m["type"] == kind and (device is None or m.get("device") == device)]
+
+    def close(self) -> None:
+        self.ws.close()
+        self._thread.join(10)
+
+
+def ws_url(service: Service, path: str) -> str:
+    return service.url.replace("http://", "ws://") + path
+
+
+def therapist(service: Service, query: str = "") -> Listener:
+    return Listener(connect(ws_url(service, "/api/ws/live" + query),
+                            additional_headers={"Authorization": f"Bearer {service.token}"}))
+
+
+def refused(service: Service, path: str, headers: dict[str, str] | None = None) -> None:
+    with pytest.raises(InvalidStatus) as exc:
+        connect(ws_url(service, path), additional_headers=headers or {}, open_timeout=10)
+    assert exc.value.response.status_code == 403, path
+
+
+def test_live_and_overlay_feeds(service: Service) -> None:
+    main, other = "ws01", "ws02"
+    sims = {d: simulate(SimConfig(seed=s, duration_s=50.0, device=d))
+            for d, s in ((main, 3), (other, 4))}
+    outgoing = sorted((m for s in sims.values() for m in prepare(s.messages)),
+                      key=lambda m: m.at)
+    with service.publisher() as pub:
+        pub.declare(outgoing)
+        assert pub.wait_for_subscribers(10.0)
+        session = service.start(main)
+        sid = session["id"]
+        wait_for(lambda: service.device(other), what="second device")
+        token = service.api.post(f"/api/sessions/{sid}/overlay-link").json()["token"]
+
+        # who may read what
+        refused(service, "/api/ws/live")
+        refused(service, "/api/ws/live", {"Authorization": f"Bearer {token}"})
+        refused(service, f"/api/ws/live?token={token}")
+        refused(service, "/api/ws/overlay")
+        refused(service, "/api/ws/overlay?token=forged")
+        refused(service, f"/api/ws/overlay?token={service.token}")
+
+        everything = therapist(service)
+        only_other = therapist(service, f"?devices={other}")
+        overlay = Listener(connect(ws_url(service, f"/api/ws/overlay?token={token}")))
+        time.sleep(0.3)
+        play(pub, outgoing, speed=20.0)
+        for d, s in sims.items():
+            n = len(s.messages)
+            wait_for(lambda: service.received(d) >= n, timeout=60, what=d)  # noqa: B023
+        time.sleep(1.5)  # statuses tick once a second
+        stopped = service.stop(sid)
+    wait_for(lambda: overlay.closed is not None, timeout=10, what="overlay closed")
+    assert overlay.closed == (1000, "session ended")
+    time.sleep(0.3)
+    everything.close()
+    only_other.close()
+
+    # therapist: hello first, then status / estimate / state / cycle
+    first = everything.messages[0][1]
+    assert first["type"] == "hello" and main in first["devices"]
+    assert only_other.messages[0][1] == {"type": "hello", "devices": [other]}
+    assert {m.get("device") for _, m in only_other.messages[1:]} == {other}
+    kinds = {m["type"] for _, m in everything.messages}
+    assert {"hello", "status", "estimate", "state", "cycle"} <= kinds
+
+    status = everything.of("status", main)[-2]
+    for key in ("online", "session_id", "patient", "heading_converged", "convergence_progress",
+                "heading_confidence", "heading_std_deg", "upper_arm_length_m", "quality",
+                "rates_hz"):
+        assert key in status, key
+    assert status["session_id"] == sid and status["patient"] == f"p-{main}"
+    assert status["online"] is True and status["heading_converged"] is True
+    assert set(status["rates_hz"]) == {"imu", "robot"}
+
+    # estimates: every column, every row exactly once, at most 30 messages per second
+    est = [(t, m) for t, m in everything.messages if m["type"] == "estimate"
+           and m["device"] == main]
+    assert set(est[0][1]["rows"]) == set(CONTRACT_COLUMNS) | set(DISPLAY_EXTRA)
+    t_rows = [t for _, m in est for t in m["rows"]["t"]]
+    csv = service.api.get(f"/api/sessions/{sid}/estimates.csv").text.splitlines()[1:]
+    assert t_rows == [float(line.split(",")[0]) for line in csv]
+    arrivals = [t for t, _ in est]
+    for i in range(len(arrivals) - 31):  # any 31 consecutive messages span ≥ 1 s (jitter)
+        assert arrivals[i + 30] - arrivals[i] >= 0.9
+    assert len(est) < len(t_rows) / 2  # 20× real time: many rows per message
+
+    states = everything.of("state", main)
+    assert states and all(s["state"] in ("ok", "outside", "warning") for s in states)
+    cycles = everything.of("cycle", main)
+    assert [c["index"] for c in cycles] == list(range(len(cycles)))
+    assert len(cycles) == stopped["summary"]["cycles"]
+    assert set(cycles[0]) == {"type", "device", "start", "end", "outside_fraction",
+                              "compensatory", "index"}
+
+    # overlay: its own device and session only, and only these fields
+    assert overlay.messages
+    assert {m["device"] for _, m in overlay.messages} == {main}
+    for _, m in overlay.messages:
+        if m["type"] == "status":
+            assert set(m) == {"type", "device", "heading_converged", "convergence_progress"}
+        elif m["type"] == "estimate":
+            assert set(m["rows"]) == set(OVERLAY_COLUMNS)
+        else:
+            assert m["type"] in ("state", "cycle"), m["type"]
+    o_rows = [t for m in overlay.of("estimate") for t in m["rows"]["t"]]
+    assert o_rows == t_rows
+    assert [c["index"] for c in overlay.of("cycle")] == [c["index"] for c in cycles]
+
+    # the link died with the session
+    refused(service, f"/api/ws/overlay?token={token}")
