@@ -292,9 +292,12 @@ def write_outputs(run: DeviceRun, report: dict[str, Any], out: Path) -> None:
     (out / "details.csv").write_text(
         DETAILS_HEADER + "\n" + "".join(x + "\n" for x in run.det_lines)
     )
-    (out / "report.json").write_text(
-        json.dumps(report, indent=1, allow_nan=False, default=_json_default)
-    )
+    (out / "report.json").write_text(dump_report(report))
+
+
+def dump_report(report: dict[str, Any]) -> str:
+    """``report.json``'s exact text (the live service writes the same bytes)."""
+    return json.dumps(report, indent=1, allow_nan=False, default=_json_default)
 
 
 def _finite(x: float) -> float | None:

@@ -19,10 +19,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any
 
-import numpy as np
-
 from backend import recording
-from backend.analysis import CSV_HEADER, DETAILS_HEADER, analyze
+from backend.analysis import CSV_HEADER, DETAILS_HEADER, analyze, dump_report
 from estimators.params import PipelineParams
 
 log = logging.getLogger(__name__)
@@ -50,19 +48,6 @@ def resolve(data_dir: Path, relpath: str) -> Path:
     if not path.is_relative_to(base):
         raise ValueError(f"recording path {relpath!r} is outside the data directory")
     return path
-
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(type(o).__name__)
-
-
-def dump_report(report: dict[str, Any]) -> str:
-    """Byte for byte what :func:`backend.analysis.write_outputs` writes."""
-    return json.dumps(report, indent=1, allow_nan=False, default=_json_default)
 
 
 def _set_aside(path: Path) -> None:
