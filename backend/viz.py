@@ -36,7 +36,7 @@ F64 = NDArray[np.float64]
 TRACE_POINTS = 240  # shoulder trace: ~8 s at 30 updates/s
 CIRCLE_SEGMENTS = 72
 MAX_FPS = 30.0
-CAMERA_OFFSET = np.array([0.75, -0.55, 0.45])  # from the arm's middle: front-side, above
+CAMERA_OFFSET = np.array([0.5, -0.4, 0.32])  # from the arm's middle: front-side, above
 
 # Okabe–Ito, as on the dashboard: ok, outside, warning; gray when unknown.
 STATE_RGB: dict[str | None, tuple[int, int, int]] = {
@@ -411,6 +411,8 @@ class Viz:
             if imu_to_elbow_m is not None and imu_to_elbow_m > 0:
                 f.imu_to_elbow_m = float(imu_to_elbow_m)
             f.version += 1
+            if device == self._selected:
+                self._push(force=True)
 
     def update(self, device: str, rows: Mapping[str, Sequence[Any]]) -> None:
         """New estimates of ``device``: the rows of a WebSocket ``estimate`` message (parallel
@@ -488,9 +490,9 @@ def _rope_anchors(wrist: F64) -> F64:
     x, y, z = (float(v) for v in wrist)
     return np.array(
         [
-            [x + 0.45, y + 0.35, z + 0.75],
-            [x - 0.45, y + 0.35, z + 0.75],
-            [x + 0.40, y - 0.25, z + 0.85],
-            [x - 0.40, y - 0.25, z + 0.85],
+            [x + 0.35, y + 0.30, z + 0.55],
+            [x - 0.35, y + 0.30, z + 0.55],
+            [x + 0.30, y - 0.20, z + 0.60],
+            [x - 0.30, y - 0.20, z + 0.60],
         ]
     )

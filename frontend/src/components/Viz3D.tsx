@@ -50,7 +50,6 @@ export function Viz3D({ device }: { device: string }) {
               class="viz__frame"
               src={src}
               title={`3D view of ${device}'s arm: shoulder, elbow, wrist, IMU, robot cuffs and ropes`}
-              loading="lazy"
             />
           )}
           <p class="muted small">

@@ -65,6 +65,11 @@ function at<T>(a: T[] | undefined, i: number): T | null {
   return v === undefined ? null : v;
 }
 
+/** Outside and warning are one episode outside the tolerance ("outside for 2.3 s"). */
+function isOut(s: IndicatorState | null): boolean {
+  return s === "outside" || s === "warning";
+}
+
 export class DeviceLive {
   status: StatusMsg | null = null;
   latest: Latest = emptyLatest();
@@ -103,7 +108,7 @@ export class DeviceLive {
   }
 
   applyState(state: IndicatorState, t: number): void {
-    if (state !== this.latest.state) this.stateSince = t;
+    if (isOut(state) && !isOut(this.latest.state)) this.stateSince = t;
     this.latest.state = state;
     this.version++;
   }
@@ -137,7 +142,7 @@ export class DeviceLive {
       S.elev.push(at(r.upper_arm_elevation_deg, i));
       const st = at(r.state, i);
       if (st && st !== this.latest.state) {
-        this.stateSince = t;
+        if (isOut(st) && !isOut(this.latest.state)) this.stateSince = t;
         this.latest.state = st;
       } else if (st === null && r.state) {
         this.latest.state = null;
@@ -230,7 +235,7 @@ export class LiveClient {
 
   /**
    * @param path e.g. "/api/ws/live?devices=a,b" or "/api/ws/overlay?token=..."
-   * @param defaultDevice device name for messages without one (the overlay feed)
+   * @param defaultDevice for a one-device feed (the overlay): every message goes to it
    */
   constructor(
     private readonly path: string,
@@ -306,6 +311,10 @@ export class LiveClient {
     };
   }
 
+  private nameOf(device: string | undefined): string {
+    return this.defaultDevice || device || "";
+  }
+
   private handle(msg: LiveMsg): void {
     this.stats.messages++;
     switch (msg.type) {
@@ -314,22 +323,22 @@ export class LiveClient {
         for (const d of this.known) this.device(d);
         break;
       case "status": {
-        const d = this.device(msg.device || this.defaultDevice);
+        const d = this.device(this.nameOf(msg.device));
         d.applyStatus(msg);
         if (!this.known.includes(d.name)) this.known = [...this.known, d.name].sort();
         break;
       }
       case "estimate": {
-        const name = msg.device || this.defaultDevice;
+        const name = this.nameOf(msg.device);
         this.device(name).applyRows(msg.rows);
         this.stats.estimates[name] = (this.stats.estimates[name] ?? 0) + 1;
         break;
       }
       case "state":
-        this.device(msg.device || this.defaultDevice).applyState(msg.state, msg.t);
+        this.device(this.nameOf(msg.device)).applyState(msg.state, msg.t);
         break;
       case "cycle":
-        this.device(msg.device || this.defaultDevice).applyCycle(msg);
+        this.device(this.nameOf(msg.device)).applyCycle(msg);
         break;
       default:
         return;
@@ -340,9 +349,12 @@ export class LiveClient {
   private changed(): void {
     if (this.scheduled) return;
     this.scheduled = true;
-    requestAnimationFrame(() => {
+    const run = () => {
       this.scheduled = false;
       this.listeners.forEach((fn) => fn());
-    });
+    };
+    // Hidden pages get no animation frames; the game's pause logic must still run.
+    if (document.hidden) window.setTimeout(run, 50);
+    else requestAnimationFrame(run);
   }
 }

@@ -12,6 +12,7 @@ export function navigate(to: string, replace = false): void {
   if (replace) history.replaceState(null, "", to);
   else history.pushState(null, "", to);
   listeners.forEach((fn) => fn(currentPath()));
+  if (replace) return; // a redirect: the page's own autofocus (login) keeps the focus
   // Move focus to the new page's heading (screen readers, keyboard users).
   requestAnimationFrame(() => {
     const h = document.querySelector<HTMLElement>("main h1");

@@ -151,6 +151,20 @@ export interface Report {
   [key: string]: unknown;
 }
 
+/** GET /api/sessions/{id}/report: the report with the session's and patient's metadata. */
+export interface ReportOut {
+  session?: Record<string, unknown>;
+  patient?: { id: number; code: string; affected_side: string };
+  provisional?: boolean;
+  report: Report;
+}
+
+export function unwrapReport(x: ReportOut | Report): Report {
+  return x && typeof x === "object" && "report" in x && x.report && typeof x.report === "object"
+    ? (x.report as Report)
+    : (x as Report);
+}
+
 // ---- WebSocket /api/ws/live and /api/ws/overlay --------------------------------------------
 
 export type Num = number | null;
@@ -194,6 +208,8 @@ export interface StatusMsg {
   upper_arm_length_m?: number;
   quality?: Quality;
   rates_hz?: { imu?: number; robot?: number };
+  tolerance_m?: number;
+  max_outside_fraction?: number;
 }
 
 export interface HelloMsg {

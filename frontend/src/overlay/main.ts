@@ -103,7 +103,7 @@ if (!token) {
 
 function tolerance(dev: DeviceLive): number {
   // The overlay feed carries the displacement; the indicator's circle is the tolerance.
-  const t = (dev.status as unknown as { tolerance_m?: number } | null)?.tolerance_m;
+  const t = dev.status?.tolerance_m;
   return typeof t === "number" && t > 0 ? t : 0.1;
 }
 
@@ -121,7 +121,7 @@ function render(dev: DeviceLive, connection: string): void {
   score.setAttribute("aria-label", `Score ${game.score}`);
   let hintText = "";
   if (connection !== "open") hintText = "Connecting…";
-  else if (st && !st.online) hintText = "The robot is not sending";
+  else if (st && st.online === false) hintText = "The robot is not sending";
   else if (st && !st.heading_converged)
     hintText = `Getting ready: move your arm along the path · ${Math.round((st.convergence_progress ?? 0) * 100)} %`;
   else if (!game.rect) hintText = "Move your hand around the path";

@@ -1,7 +1,7 @@
 import { useEffect, useMemo, useState } from "preact/hooks";
 
 import { Alert, ConnectionNote, OnlineDot } from "../components/bits";
-import { IndicatorBox, LivePlots, useFrames, useLiveClient, waitingText } from "../components/live";
+import { IndicatorBox, LivePlots, useFrames, useLiveClient } from "../components/live";
 import { api, errorText } from "../lib/api";
 import { num } from "../lib/format";
 import type { DeviceLive, LiveClient } from "../lib/live";
@@ -11,7 +11,7 @@ function Cell({ client, dev }: { client: LiveClient; dev: DeviceLive }) {
   const st = dev.status;
   const L = dev.latest;
   const comp = dev.cycles.filter((c) => c.compensatory).length;
-  const tol = 0.1;
+  const tol = st?.tolerance_m ?? 0.1;
   return (
     <section class="card grid-cell" aria-labelledby={`cell-${dev.name}`} data-device={dev.name}>
       <div class="card__head">
@@ -37,7 +37,6 @@ function Cell({ client, dev }: { client: LiveClient; dev: DeviceLive }) {
           <div class="small">
             {dev.cycles.length} cycles · <span class="verdict verdict--comp">✗ {comp}</span>
           </div>
-          {!L.state && <div class="small muted">{waitingText(st)}</div>}
         </div>
       </div>
       <LivePlots client={client} dev={dev} tolerance={tol} show={{ disp: true }} height={120} />

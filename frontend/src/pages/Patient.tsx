@@ -8,7 +8,7 @@ import { api, errorText } from "../lib/api";
 import { dateTime, deg, duration, pct, shortDate } from "../lib/format";
 import { LINE, type ChartSpec } from "../lib/plots";
 import { complete, figuresOf, type SessionFigures } from "../lib/summary";
-import type { Device, Patient, Report, Session } from "../lib/types";
+import { unwrapReport, type Device, type Patient, type ReportOut, type Session } from "../lib/types";
 
 const STATUS_TEXT: Record<Session["status"], string> = {
   active: "● Running",
@@ -99,7 +99,7 @@ export function PatientPage({ id }: { id: number }) {
         // Older sessions without a stored summary: read their reports (newest 30).
         for (const s of missing.slice(0, 30)) {
           try {
-            const f = figuresOf(await api.get<Report>(`/api/sessions/${s.id}/report`));
+            const f = figuresOf(unwrapReport(await api.get<ReportOut>(`/api/sessions/${s.id}/report`)));
             if (f) figs.set(s.id, f);
           } catch {
             /* a session without data has no report */

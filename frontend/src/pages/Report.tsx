@@ -8,7 +8,7 @@ import { parseEstimates, type EstimateColumns } from "../lib/csv";
 import { cm, dateTime, deg, duration, pct, seconds } from "../lib/format";
 import { LINE, type ChartSpec } from "../lib/plots";
 import { qualityRows } from "../lib/quality";
-import type { Cycle, Report, Session } from "../lib/types";
+import { unwrapReport, type Cycle, type Report, type ReportOut, type Session } from "../lib/types";
 
 export function ReportPage({ id }: { id: number }) {
   const [session, setSession] = useState<Session | null>(null);
@@ -22,8 +22,8 @@ export function ReportPage({ id }: { id: number }) {
     let alive = true;
     api.get<Session>(`/api/sessions/${id}`).then((s) => alive && setSession(s)).catch((e) => alive && setError(errorText(e)));
     api
-      .get<Report>(`/api/sessions/${id}/report`)
-      .then((r) => alive && setReport(r))
+      .get<ReportOut>(`/api/sessions/${id}/report`)
+      .then((r) => alive && setReport(unwrapReport(r)))
       .catch((e) => alive && setReportError(e instanceof ApiError && e.status === 404 ? "This session has no report (no data was recorded)." : errorText(e)));
     api.get<Cycle[]>(`/api/sessions/${id}/cycles`).then((c) => alive && setCycles(c)).catch(() => alive && setCycles([]));
     getText(`/api/sessions/${id}/estimates.csv`)
