@@ -195,6 +195,12 @@ class Indicator:
             cs = getattr(b, "cycle_start", None)
             if cs is not None:
                 self.cycle_completed(float(cs), float(b), getattr(b, "detected_at", None))
+        if tolerated_s is None and self.params.warning_after_s is not None:
+            tolerated_s = self.params.warning_after_s
+        if isinstance(t, list) and isinstance(displacement, list) and len(t) <= self._SMALL:
+            if len(displacement) != len(t):
+                raise ValueError("t and displacement must both have shape (N,)")
+            return self._update_small(t, displacement, tolerated_s)  # floats: no numpy calls
         tt = np.asarray(t, dtype=np.float64)
         dd = np.asarray(displacement, dtype=np.float64)
         if tt.shape != dd.shape or tt.ndim != 1:
@@ -202,8 +208,6 @@ class Indicator:
         n = tt.shape[0]
         if n == 0:
             return np.zeros(0, dtype=np.int8), []
-        if tolerated_s is None and self.params.warning_after_s is not None:
-            tolerated_s = self.params.warning_after_s
         if n <= self._SMALL:
             return self._update_small(tt.tolist(), dd.tolist(), tolerated_s)
         return self._update_vector(tt, dd, tolerated_s)
@@ -333,6 +337,8 @@ class EpisodeTracker:
     by the call that sees the sample ending the run (or by :meth:`flush`).
     """
 
+    _SMALL = 8  # chunks up to this size take the scalar path
+
     def __init__(self, params: CompensationParams | None = None) -> None:
         self.params = params if params is not None else CompensationParams()
         self._t_last = -math.inf
@@ -345,6 +351,11 @@ class EpisodeTracker:
     ) -> list[Episode]:
         """``t`` (N,) s, ``codes`` (N,) indicator codes, ``displacement`` (N,) m (optional,
         for the peak). Returns the episodes that ended in this chunk."""
+        if isinstance(t, list) and isinstance(displacement, list) and len(t) <= self._SMALL:
+            cl: list[int] = np.asarray(codes).tolist()
+            if not len(cl) == len(displacement) == len(t):
+                raise ValueError("t and codes must both have shape (N,)")
+            return self._update_small(t, cl, displacement)  # floats: no numpy calls
         tt = np.asarray(t, dtype=np.float64)
         cc = np.asarray(codes, dtype=np.int8)
         n = tt.shape[0]
@@ -353,6 +364,8 @@ class EpisodeTracker:
         dd = np.full(n, np.nan) if displacement is None else np.asarray(displacement, np.float64)
         if n == 0:
             return []
+        if n <= self._SMALL:
+            return self._update_small(tt.tolist(), cc.tolist(), dd.tolist())
         hold = self.params.max_hold_s
         out_mask = cc >= OUTSIDE
         prev_t = np.empty(n)
@@ -388,6 +401,29 @@ class EpisodeTracker:
             si += 1
         self._absorb(cc, dd, pos, n)
         self._t_last = float(tt[-1])
+        return episodes
+
+    def _update_small(self, ts: list[float], cs: list[int], ds: list[float]) -> list[Episode]:
+        """Sample by sample, the same decisions as the vector path (small chunks)."""
+        hold = self.params.max_hold_s
+        episodes: list[Episode] = []
+        t_last = self._t_last
+        for ti, ci, di in zip(ts, cs, ds, strict=True):
+            out = ci >= OUTSIDE
+            gap = ti - t_last > hold
+            if self._start is not None and (not out or gap):
+                ep = self._close(t_last + min(ti - t_last, hold))
+                if ep is not None:
+                    episodes.append(ep)
+            if out:
+                if self._start is None:
+                    self._open(ti)
+                if ci == WARNING:
+                    self._warned = True
+                if di == di and di > self._peak:
+                    self._peak = di
+            t_last = ti
+        self._t_last = t_last
         return episodes
 
     def flush(self) -> list[Episode]:

@@ -29,12 +29,13 @@ from __future__ import annotations
 
 import bisect
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal, TypeAlias
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from estimators.buffers import RowBuffer
 
 FloatArray: TypeAlias = NDArray[np.float64]
 Mode: TypeAlias = Literal["auto", "path", "events", "reach"]
@@ -159,53 +160,6 @@ class CycleParams:
             raise ValueError("max_axis_turn_rad must be in (0, pi/2)")
         if not (self.still_radius_m > 0.0 and self.still_window_s > 0.0):
             raise ValueError("still_radius_m and still_window_s must be > 0")
-
-
-class RowBuffer:
-    """FIFO of float64 rows (``width`` columns) with amortised O(1) append and drop-front.
-
-    Internal helper (also used by :mod:`estimators.verdicts`). :meth:`view` returns a view
-    that is valid until the next :meth:`append`/:meth:`push`.
-    """
-
-    def __init__(self, width: int, capacity: int = 256) -> None:
-        self.a = np.empty((max(capacity, 16), width))
-        self.lo = 0
-        self.hi = 0
-
-    def __len__(self) -> int:
-        return self.hi - self.lo
-
-    def _reserve(self, n: int) -> None:
-        live = self.hi - self.lo
-        if live + n > self.a.shape[0] // 2:
-            grown = np.empty((2 * (live + n), self.a.shape[1]))
-            grown[:live] = self.a[self.lo : self.hi]
-            self.a = grown
-        else:
-            self.a[:live] = self.a[self.lo : self.hi]
-        self.lo, self.hi = 0, live
-
-    def append(self, rows: FloatArray) -> None:
-        n = rows.shape[0]
-        if self.hi + n > self.a.shape[0]:
-            self._reserve(n)
-        self.a[self.hi : self.hi + n] = rows
-        self.hi += n
-
-    def push(self, row: Sequence[float]) -> None:
-        """Append one row."""
-        if self.hi >= self.a.shape[0]:
-            self._reserve(1)
-        self.a[self.hi] = row
-        self.hi += 1
-
-    def view(self) -> FloatArray:
-        return self.a[self.lo : self.hi]
-
-    def drop(self, k: int) -> None:
-        """Remove the ``k`` oldest rows."""
-        self.lo = min(self.lo + max(k, 0), self.hi)
 
 
 class _MovingWindow:
@@ -848,6 +802,33 @@ class CycleSegmenter:
         seen = self._data_t  # data time before this chunk
         if n:
             self._data_t = max(self._data_t, float(tt[-1]))
+        self._due_events(seen, out)
+        return out
+
+    def push(self, t: float, x: float, y: float) -> list[float]:
+        """:meth:`update` for one sample (time s, wrist x and y m), without numpy calls:
+        the live pipeline feeds one row at a time."""
+        out: list[float] = []
+        det = self._detector
+        if det is not None:
+            if self._switch_t is None or t < self._switch_t:
+                if det.origin is None:
+                    det.origin = (x, y)
+                ox, oy = det.origin
+                found: list[Boundary] = []
+                det.step(t, x - ox, y - oy, found)
+                for b in found:
+                    out.append(b)
+                    self._last_b = b
+            else:
+                self._detector = None
+        seen = self._data_t
+        self._data_t = max(seen, t)
+        if self._events and self._events[0] <= self._data_t:
+            self._due_events(seen, out)
+        return out
+
+    def _due_events(self, seen: float, out: list[float]) -> None:
         if self._events and self._events[0] <= self._data_t:
             k = bisect.bisect_right(self._events, self._data_t)
             due = self._events[:k]
@@ -855,7 +836,6 @@ class CycleSegmenter:
             after = math.nextafter(seen, math.inf)
             for te in due:
                 self._emit_event(te, max(te, after), out)
-        return out
 
     def _emit_event(self, te: float, detected_at: float, out: list[float]) -> None:
         p = self.params

@@ -26,6 +26,7 @@ Both sides then see the same filter, the same delay and no gyro derivative at al
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass, field
 from typing import Any, TypeAlias
@@ -37,6 +38,8 @@ from vqf import VQF
 from estimators import heading as hd
 from estimators import kinematics as kin
 from estimators import quaternion as quat
+from estimators import rows
+from estimators.buffers import RowBuffer
 from estimators.compensation import CompensationParams, Episode, EpisodeTracker, Indicator
 from estimators.cycles import CycleParams, CycleSegmenter
 from estimators.filters import LowPass, dc_group_delay_s
@@ -194,10 +197,15 @@ class _Stream:
 class _ImuStage:
     """6D orientation and elbow-acceleration terms at the IMU rate (frame I)."""
 
+    # buffer columns: t, segment id, q_IA (4), the 6D filter's sensor orientation q_IS (4),
+    # specific force in the sensor frame (3), paper method's eq. 1–2 acceleration (3)
+    T, SEG, Q, QS, ACC, V, WIDTH = 0, 1, 2, 6, 10, 13, 16
+
     def __init__(self, p: PipelineParams) -> None:
         self.p = p
         self.mount = np.array(p.mounting_quat, dtype=np.float64)
         self.mount /= np.linalg.norm(self.mount)
+        self.identity_mount = bool(np.array_equal(self.mount, [1.0, 0.0, 0.0, 0.0]))
         # lever arm IMU → elbow in the sensor frame (eq. 1's r = [d, 0, 0] in A)
         self.r = quat.rotate(self.mount, EX * p.imu_to_elbow_m)
         self.ts: float | None = None
@@ -208,13 +216,16 @@ class _ImuStage:
         self.gyro_lp: LowPass | None = None
         self.gyro_zi: Array | None = None
         self.gyro_prev: Array | None = None
-        # processed buffer
-        self.t = np.empty(0)
-        self.segid = np.empty(0, dtype=np.int64)
-        self.q = np.empty((0, 4))  # q_IA (segment frame)
-        self.q_is = np.empty((0, 4))  # the 6D filter's sensor orientation
-        self.acc = np.empty((0, 3))  # specific force, sensor frame
-        self.v = np.empty((0, 3))  # paper method: eq. 1–2 acceleration (sequential filter)
+        self.buf = RowBuffer(self.WIDTH)
+        self.tl: list[float] = []  # the buffer's times as floats (bisect for single rows)
+
+    @property
+    def t(self) -> Array:
+        return self.buf.col(self.T)
+
+    @property
+    def segid(self) -> Array:
+        return self.buf.col(self.SEG)
 
     def _reset(self) -> None:
         assert self.ts is not None
@@ -238,6 +249,18 @@ class _ImuStage:
             self._reset()
         assert self.ts is not None
         ts = self.ts
+        tl = t.tolist()
+        if self.last is not None:
+            # the usual message: no gap (a plain loop, cheaper than numpy for a few samples)
+            prev, limit = self.last[0], 2.5 * ts
+            for x in tl:
+                if x - prev > limit:
+                    break
+                prev = x
+            else:
+                self.last = (tl[-1], gyr[-1].copy(), acc[-1].copy())
+                self._run(t, gyr, acc, tl)
+                return
         # gaps: bridge short ones by interpolation, reset on long ones
         if self.last is not None:
             t = np.concatenate(([self.last[0]], t))
@@ -269,13 +292,20 @@ class _ImuStage:
             start = int(gi) + 1
         self._run(t[start:], gyr[start:], acc[start:])
 
-    def _run(self, t: Array, gyr: Array, acc: Array) -> None:
+    def _run(self, t: Array, gyr: Array, acc: Array, tl: list[float] | None = None) -> None:
         """Orientation and acceleration terms of one contiguous piece of samples."""
-        if len(t) == 0:
+        n = len(t)
+        if n == 0:
             return
         assert self.vqf is not None
         out = self.vqf.updateBatch(np.ascontiguousarray(gyr), np.ascontiguousarray(acc))
-        q_is = np.asarray(out["quat6D"], dtype=np.float64)
+        q_is = out["quat6D"]
+        rows = np.empty((n, self.WIDTH))
+        rows[:, self.T] = t
+        rows[:, self.SEG] = self.seg
+        rows[:, self.Q : self.Q + 4] = q_is if self.identity_mount else quat.mul(q_is, self.mount)
+        rows[:, self.QS : self.QS + 4] = q_is
+        rows[:, self.ACC : self.ACC + 3] = acc
         if self.p.method == "paper":
             assert self.gyro_lp is not None and self.ts is not None
             if self.gyro_zi is None or self.gyro_prev is None:
@@ -286,41 +316,38 @@ class _ImuStage:
             gdot = (gf - prev) / self.ts  # backward difference of the low-passed gyro (eq. 1)
             self.gyro_prev = gf[-1].copy()
             v = kin.inertial_acceleration(q_is, kin.joint_specific_force(acc, gyr, gdot, self.r))
-            self.v = np.concatenate((self.v, v))
-        self.t = np.concatenate((self.t, t))
-        self.segid = np.concatenate((self.segid, np.full(len(t), self.seg)))
-        self.q = np.concatenate((self.q, quat.mul(q_is, self.mount)))
-        self.q_is = np.concatenate((self.q_is, q_is))
-        self.acc = np.concatenate((self.acc, acc))
+            rows[:, self.V : self.V + 3] = v
+        else:
+            rows[:, self.V : self.V + 3] = 0.0
+        self.buf.append(rows)
+        self.tl.extend(t.tolist() if tl is None else tl)
 
     def trim(self, t_keep: float) -> None:
-        i = max(0, int(np.searchsorted(self.t, t_keep)) - 2)
+        i = max(0, bisect.bisect_left(self.tl, t_keep) - 2)
         if i > 0:
-            self.t, self.segid = self.t[i:], self.segid[i:]
-            self.q = self.q[i:]
-            if len(self.v):
-                self.v = self.v[i:]
-            self.q_is, self.acc = self.q_is[i:], self.acc[i:]
+            self.buf.drop(i)
+            del self.tl[:i]
 
     def smooth(self, g: Array, half: float) -> tuple[Idx, Array]:
         """Acceleration terms (v, u) at grid times ``g``, anti-aliased by a centred Hann
         kernel of half-width ``half`` (s). Centred, so it shifts nothing in time: a lag
         between the two sides would turn into a heading bias on circular paths.
         Returns ``(ok, x)`` with x (n, 6); ok where the whole kernel lies in one segment."""
-        n, ng = len(self.t), len(g)
+        t, segid = np.ascontiguousarray(self.t), self.segid
+        n, ng = len(t), len(g)
         ts = self.ts or 0.01
         m = int(math.ceil(2.0 * half / ts)) + 2
         if n < m:
             return np.zeros(ng, bool), np.full((ng, 15), np.nan)
-        lo = np.clip(np.searchsorted(self.t, g - half, side="left"), 0, n - m)
+        lo = np.clip(np.searchsorted(t, g - half, side="left"), 0, n - m)
         idx = lo[:, None] + np.arange(m)[None, :]
-        tt = self.t[idx] - g[:, None]
+        tt = t[idx] - g[:, None]
         w = np.where(np.abs(tt) < half, 0.5 + 0.5 * np.cos(np.pi * tt / half), 0.0)
         wsum = w.sum(axis=1)
         ok = (
-            (self.t[lo] <= g - half + ts)
-            & (self.t[lo + m - 1] >= g + half - ts)
-            & (self.segid[lo] == self.segid[lo + m - 1])
+            (t[lo] <= g - half + ts)
+            & (t[lo + m - 1] >= g + half - ts)
+            & (segid[lo] == segid[lo + m - 1])
             & (wsum > 0)
         )
         base = int(lo.min())
@@ -333,36 +360,61 @@ class _ImuStage:
         """Fusion channels of samples ``lo:hi`` (n, 15): the acceleration term v (used as
         is), the lever term u = q r q* (differentiated after the low-pass), and the sensor
         axes in I (for the bias and lever fits). Computed only when the grid needs them."""
+        rows = self.buf.view()[lo:hi]
         if self.p.method == "paper":
-            v = self.v[lo:hi]
+            v = rows[:, self.V : self.V + 3]
             return np.concatenate((v, np.zeros((len(v), 12))), axis=1)
-        c = quat.matrix_columns(self.q_is[lo:hi])
-        acc, r = self.acc[lo:hi], self.r
+        c = quat.matrix_columns(rows[:, self.QS : self.QS + 4])
+        acc, r = rows[:, self.ACC : self.ACC + 3], self.r
         cx, cy, cz = c[:, 0:3], c[:, 3:6], c[:, 6:9]
         v = cx * acc[:, 0:1] + cy * acc[:, 1:2] + cz * acc[:, 2:3] - kin.GRAVITY
         u = cx * r[0] + cy * r[1] + cz * r[2]
         return np.concatenate((v, u, c), axis=1)
 
     def _bracket(self, s: Array) -> tuple[Idx, Idx, Idx, Array]:
-        n = len(self.t)
-        i1 = np.searchsorted(self.t, s, side="left")
+        t, segid = np.ascontiguousarray(self.t), self.segid
+        n = len(t)
+        i1 = np.searchsorted(t, s, side="left")
         i1c = np.clip(i1, 1, max(n - 1, 1))
         i0 = i1c - 1
-        ok = (i1 > 0) & (i1 < n) & (self.segid[i0] == self.segid[i1c])
-        w = np.clip((s - self.t[i0]) / (self.t[i1c] - self.t[i0]), 0.0, 1.0)
+        ok = (i1 > 0) & (i1 < n) & (segid[i0] == segid[i1c])
+        w = np.clip((s - t[i0]) / (t[i1c] - t[i0]), 0.0, 1.0)
         return ok, i0, i1c, w
 
-    def interp(self, s: Array) -> tuple[Idx, Array, Idx]:
-        """Orientation q_IA at times ``s`` (nlerp); ``ok`` where both neighbours exist in
-        one segment; also the segment ids."""
-        if len(self.t) < 2:
-            return np.zeros(len(s), bool), np.full((len(s), 4), np.nan), np.zeros(len(s), np.int64)
+    def interp(self, s: Array) -> tuple[Idx, tuple[Array, ...], Array]:
+        """Orientation q_IA (w, x, y, z columns) at times ``s`` (nlerp, :func:`rows.nlerp`);
+        ``ok`` where both neighbours exist in one segment; also the segment ids.
+        Bit-identical to :meth:`at` for each time."""
+        if len(self.tl) < 2:
+            nan = np.full(len(s), np.nan)
+            return np.zeros(len(s), bool), (nan, nan, nan, nan), np.zeros(len(s))
         ok, i0, i1, w = self._bracket(s)
-        return ok, quat.nlerp(self.q[i0], self.q[i1], w), self.segid[i1]
+        q = self.buf.cols(self.Q, self.Q + 4)
+        q0 = tuple(q[i0, j] for j in range(4))
+        q1 = tuple(q[i1, j] for j in range(4))
+        return ok, rows.nlerp(rows.VECTOR, q0, q1, w), self.segid[i1]
+
+    def at(self, s: float) -> tuple[bool, tuple[float, ...], float]:
+        """:meth:`interp` for one time, with Python floats (a single row costs ~20× less)."""
+        tl = self.tl
+        n = len(tl)
+        if n < 2:
+            return False, NAN4, 0.0
+        i1 = bisect.bisect_left(tl, s)
+        i1c = min(max(i1, 1), n - 1)
+        i0 = i1c - 1
+        a, base = self.buf.a, self.buf.lo
+        r0 = a[base + i0, : self.Q + 4].tolist()
+        r1 = a[base + i1c, : self.Q + 4].tolist()
+        ok = 0 < i1 < n and r0[self.SEG] == r1[self.SEG]
+        t0, t1 = tl[i0], tl[i1c]
+        w = rows.SCALAR.clip((s - t0) / (t1 - t0), 0.0, 1.0)
+        q = rows.nlerp(rows.SCALAR, tuple(r0[self.Q :]), tuple(r1[self.Q :]), w)
+        return ok, q, r1[self.SEG]
 
     def interp_channels(self, s: Array) -> tuple[Idx, Array]:
         """Fusion channels linearly interpolated at ``s`` (no anti-alias: the paper's way)."""
-        if len(self.t) < 2:
+        if len(self.tl) < 2:
             return np.zeros(len(s), bool), np.full((len(s), 15), np.nan)
         ok, i0, i1, w = self._bracket(s)
         base = int(i0.min()) if len(i0) else 0
@@ -375,47 +427,61 @@ class _ImuStage:
 
 
 class _RobotStage:
+    """The elbow positions on the physical time base (stamp − offset), with segments split
+    at gaps longer than ``robot_max_bridge_s``."""
+
     def __init__(self, p: PipelineParams) -> None:
         self.p = p
-        self.t = np.empty(0)  # physical time (stamp − offset)
-        self.segid = np.empty(0, dtype=np.int64)
-        self.p_e = np.empty((0, 3))
+        self.buf = RowBuffer(5)  # t, segment id, p_E (3)
+        self.tl: list[float] = []
         self.seg = 0
-        self.base = 0  # global index of self.t[0]
 
-    def append(self, s: Array, p_e: Array, q: Quality) -> None:
-        prev = self.t[-1] if len(self.t) else None
-        seg = np.zeros(len(s), dtype=np.int64)
-        tt = s if prev is None else np.concatenate(([prev], s))
-        d = np.diff(tt)
-        for gi in np.flatnonzero(d > self.p.robot_max_bridge_s):
-            q.robot_gaps += 1
-            q.gaps.append({"stream": "robot", "t": float(tt[gi]), "duration_s": float(d[gi])})
-            seg[gi + (0 if prev is not None else 1) :] += 1
-        nb = int(np.count_nonzero((d > 2.5 / 25.0) & (d <= self.p.robot_max_bridge_s)))
-        q.robot_bridged_gaps += nb
-        seg += self.seg
-        if len(seg):
-            self.seg = int(seg[-1])
-        self.t = np.concatenate((self.t, s))
-        self.segid = np.concatenate((self.segid, seg))
-        self.p_e = np.concatenate((self.p_e, p_e))
+    def append(self, s: list[float], p_e: Any, q: Quality) -> None:
+        """Samples at physical times ``s``; ``p_e`` (n, 3) array or n float triples."""
+        seg = self.seg
+        segs: list[int] = []
+        prev = self.tl[-1] if self.tl else None
+        bridge = self.p.robot_max_bridge_s
+        for x in s:
+            if prev is not None:
+                d = x - prev
+                if d > bridge:
+                    q.robot_gaps += 1
+                    q.gaps.append({"stream": "robot", "t": prev, "duration_s": d})
+                    seg += 1
+                elif d > 2.5 / 25.0:
+                    q.robot_bridged_gaps += 1
+            segs.append(seg)
+            prev = x
+        self.seg = seg
+        if isinstance(p_e, list):
+            for x, g, e in zip(s, segs, p_e, strict=True):
+                self.buf.push((x, g, *e))
+        else:
+            rows = np.empty((len(s), 5))
+            rows[:, 0] = s
+            rows[:, 1] = segs
+            rows[:, 2:5] = p_e
+            self.buf.append(rows)
+        self.tl.extend(s)
 
     def interp(self, g: Array) -> tuple[Idx, Array]:
-        n = len(self.t)
+        n = len(self.tl)
         if n < 2:
             return np.zeros(len(g), bool), np.full((len(g), 3), np.nan)
-        i1 = np.clip(np.searchsorted(self.t, g, side="left"), 1, n - 1)
+        v = self.buf.view()
+        t, segid, p_e = np.ascontiguousarray(v[:, 0]), v[:, 1], v[:, 2:5]
+        i1 = np.clip(np.searchsorted(t, g, side="left"), 1, n - 1)
         i0 = i1 - 1
-        ok = (g >= self.t[0]) & (g <= self.t[-1]) & (self.segid[i0] == self.segid[i1])
-        w = np.clip((g - self.t[i0]) / (self.t[i1] - self.t[i0]), 0.0, 1.0)
-        return ok, self.p_e[i0] + w[:, None] * (self.p_e[i1] - self.p_e[i0])
+        ok = (g >= t[0]) & (g <= t[-1]) & (segid[i0] == segid[i1])
+        w = np.clip((g - t[i0]) / (t[i1] - t[i0]), 0.0, 1.0)
+        return ok, p_e[i0] + w[:, None] * (p_e[i1] - p_e[i0])
 
     def trim(self, t_keep: float) -> None:
-        i = max(0, int(np.searchsorted(self.t, t_keep)) - 2)
+        i = max(0, bisect.bisect_left(self.tl, t_keep) - 2)
         if i > 0:
-            self.t, self.segid, self.p_e = self.t[i:], self.segid[i:], self.p_e[i:]
-            self.base += i
+            self.buf.drop(i)
+            del self.tl[:i]
 
 
 # ------------------------------------------------------------------------------ stage 3: grid
@@ -461,10 +527,10 @@ class _GridStage:
         return float(self.t[-1]) if len(self.t) else -math.inf
 
     def advance(self, imu: _ImuStage, robot: _RobotStage, until: float) -> None:
-        if not len(imu.t) or not len(robot.t):
+        if not imu.tl or not robot.tl:
             return
         if self.k_next is None:
-            self.k_next = int(math.ceil(max(imu.t[0], robot.t[0]) / self.dt))
+            self.k_next = int(math.ceil(max(imu.tl[0], robot.tl[0]) / self.dt))
         k_end = int(math.floor(until / self.dt))
         if k_end < self.k_next:
             return
@@ -474,7 +540,7 @@ class _GridStage:
             ok_i, vu = imu.smooth(g, self.half)
         else:
             ok_i, vu = imu.interp_channels(g)
-        segs = imu.segid[np.clip(np.searchsorted(imu.t, g), 0, len(imu.t) - 1)]
+        segs = imu.segid[np.clip(np.searchsorted(np.asarray(imu.tl), g), 0, len(imu.tl) - 1)]
         ok_r, p = robot.interp(g)
         ok = ok_i & ok_r
         x = np.concatenate((vu, p), axis=1)
@@ -582,17 +648,15 @@ class Pipeline:
         self._n_decided = 0
         self._decisions: list[tuple[bool, int]] = []
         self._n_done = 0
-        self._row_wrist: list[Array] = []
-        self._row_pe: list[Array] = []
-        self._row_xc: list[Array] = []
+        self._rowbuf = RowBuffer(9)  # wrist, p_E, x_C of the robot samples not yet emitted
         # heading
         self._hstate = hd.HeadingState()
         self._hseg = 0
         self._t_update: float | None = None
         # heading after each update: t, delta, rate, t_update, std, converged, imu segment,
         # robot latency
-        self._snaps = np.empty((0, 8))
-        self._snap_t = np.empty(0)
+        self._snaps: list[tuple[float, ...]] = []
+        self._snap_t: list[float] = []
         self.convergence_time: float | None = None
         self.first_motion_time: float | None = None
         # nominal shoulder: specs in feed order: ("point", t, xyz) or ("auto", t, None)
@@ -604,8 +668,8 @@ class Pipeline:
         else:
             self._specs.append(("auto", -math.inf, None))
         self._nom_spec = -1
-        self._nom_point: Array | None = None
-        self._nom_acc: list[Array] = []
+        self._nom_point: tuple[float, ...] | None = None
+        self._nom_acc: list[tuple[float, ...]] = []
         self._nom_t0: float | None = None
         self._ref_point: Array | None = None  # the last rope-measured point (for l_A)
         self._arm_len = p.upper_arm_length_m
@@ -625,7 +689,11 @@ class Pipeline:
         self._judge = CycleJudge(self._cp)
         self._episodes = EpisodeTracker(self._cp)
         self._xc_prev_t = -math.inf
-        self._xc_prev = np.zeros(3)
+        self._xc_prev: tuple[float, ...] = (0.0, 0.0, 0.0)
+        self._grid_trimmed = -math.inf
+        # a row uses the latest heading update the grid is sure to have reached by the time
+        # the row became ready (two grid steps and the anti-alias half-width back)
+        self._snap_lag = 2.0 * self._grid.dt + self._grid.half + 1e-9
 
     # ------------------------------------------------------------------ feeding
 
@@ -785,20 +853,22 @@ class Pipeline:
         off = self.params.robot_time_offset_s
         if self._robot_pending:
             pend_r, self._robot_pending = self._robot_pending, []
-            wrist = np.concatenate([c[1] for c in pend_r])
-            p_e, x_c = kin.elbow_from_cuffs(
-                wrist, np.concatenate([c[2] for c in pend_r]), self.params.cuff_to_elbow_m
-            )
-            if any(c[3] is not None for c in pend_r):  # a robot that knows the elbow itself
-                given = [
-                    c[3] if c[3] is not None else np.full((len(c[0]), 3), np.nan) for c in pend_r
-                ]
-                e = np.concatenate(given)
-                p_e = np.where(np.isfinite(e), e, p_e)
-            self._row_wrist.append(wrist)
-            self._row_pe.append(p_e)
-            self._row_xc.append(x_c)
-            self._robot.append(np.concatenate([c[0] for c in pend_r]) - off, p_e, self.quality)
+            if len(pend_r) == 1:
+                self._robot_samples(*pend_r[0], off)
+            else:  # one vectorised call (elementwise: the same numbers as one by one)
+                given = [c[3] for c in pend_r]
+                elbow = None
+                if any(e is not None for e in given):
+                    elbow = np.concatenate(
+                        [np.full((len(c[0]), 3), np.nan) if c[3] is None else c[3] for c in pend_r]
+                    )
+                self._robot_samples(
+                    np.concatenate([c[0] for c in pend_r]),
+                    np.concatenate([c[1] for c in pend_r]),
+                    np.concatenate([c[2] for c in pend_r]),
+                    elbow,
+                    off,
+                )
         # fusion grid as far as both streams reach (stamps fed so far)
         until = min(self._imu_frontier - self._grid.half, self._robot_frontier - off)
         # The grid only feeds heading updates: advance it (in one vectorised chunk, with the
@@ -868,66 +938,79 @@ class Pipeline:
             snaps.append(
                 (t_up, d, s.rate, s.t_update, s.std, float(s.converged), float(seg), s.lag)
             )
-        if snaps:
-            self._snaps = np.concatenate((self._snaps, np.array(snaps)))
-            self._snap_t = self._snaps[:, 0]
+        self._snaps.extend(snaps)
+        self._snap_t.extend(s[0] for s in snaps)
+
+    def _robot_samples(
+        self, t: Array, wrist: Array, prox: Array, elbow: Array | None, off: float
+    ) -> None:
+        """Elbow and forearm axis from the cuffs (eq. 13), or the robot's own elbow."""
+        n = len(t)
+        lp = self.params.cuff_to_elbow_m
+        if n <= _SMALL:
+            M = rows.SCALAR
+            el = None if elbow is None else elbow.tolist()
+            pes: list[tuple[float, ...]] = []
+            for j, (w, p) in enumerate(zip(wrist.tolist(), prox.tolist(), strict=True)):
+                xc = rows.unit(M, (w[0] - p[0], w[1] - p[1], w[2] - p[2]))
+                pe = (p[0] - lp * xc[0], p[1] - lp * xc[1], p[2] - lp * xc[2])
+                if el is not None:
+                    pe = tuple(e if math.isfinite(e) else v for e, v in zip(el[j], pe, strict=True))
+                self._rowbuf.push((*w, *pe, *xc))
+                pes.append(pe)
+            self._robot.append([x - off for x in t.tolist()], pes, self.quality)
+            return
+        M = rows.VECTOR
+        xc_v = rows.unit(M, tuple(wrist[:, i] - prox[:, i] for i in range(3)))
+        pe_v = tuple(prox[:, i] - lp * xc_v[i] for i in range(3))
+        if elbow is not None:
+            pe_v = tuple(np.where(np.isfinite(elbow[:, i]), elbow[:, i], pe_v[i]) for i in range(3))
+        block = np.column_stack((wrist, *pe_v, *xc_v))
+        self._rowbuf.append(block)
+        self._robot.append((t - off).tolist(), block[:, 3:6], self.quality)
 
     def _rows(self) -> Output:
-        p = self.params
+        """Rows of the robot samples decided since the last poll (eqs. 9–12, §3.4).
+
+        One row at a time in Python floats when few are due (the live case), as arrays
+        otherwise; :mod:`estimators.rows` makes both bit-identical."""
         lo, hi = self._n_done, self._n_decided
         out = Output()
         if hi <= lo:
             return out
         self._n_done = hi
-        t = np.asarray(self._row_t[lo:hi])
-        s = t - p.robot_time_offset_s
+        n = hi - lo
+        t = self._row_t[lo:hi]
         dec = self._decisions[lo:hi]
-        with_imu = np.array([d[0] for d in dec], dtype=bool)
-        spec = np.array([d[1] for d in dec], dtype=np.int64)
-        wrist, p_e, x_c = self._take_rows(hi - lo)
-        n = len(t)
-        # heading snapshot: the latest update the grid is sure to have reached by the time
-        # this row became ready (two grid steps and the anti-alias half-width back)
-        lag = 2.0 * self._grid.dt + self._grid.half + 1e-9
-        si = np.searchsorted(self._snap_t, s - lag, side="right") - 1
-        sn = self._snaps[np.maximum(si, 0)] if len(self._snaps) else np.full((n, 8), np.nan)
-        sn = np.where((si >= 0)[:, None], sn, np.nan)
-        # pair the robot sample with the IMU at the same physical instant (estimated latency;
-        # a robot ahead of the IMU is not corrected, the IMU sample would not be here yet)
-        latency = np.where(np.isfinite(sn[:, 7]), np.maximum(sn[:, 7], 0.0), 0.0)
-        ok2, q2, seg2 = self._imu.interp(np.concatenate((s - latency, s)))
-        ok, q_pair, seg = ok2[:n], q2[:n], seg2[:n]
-        q_now = q2[n:]
-        ok &= with_imu & ok2[n:] & (seg2[n:] == seg)
-        use = ok & np.isfinite(sn[:, 1]) & (sn[:, 6] == seg)
-        since = np.maximum(0.0, s - sn[:, 3])
-        with np.errstate(invalid="ignore"):
-            delta = np.where(use, sn[:, 1] + sn[:, 2] * (s - sn[:, 3]), np.nan)
-            std = np.where(use, np.hypot(sn[:, 4], math.radians(0.1) * since), np.inf)
-        conv = use & (sn[:, 5] > 0)
-        good = ok & conv & np.isfinite(delta)
-        q_ra = np.full((n, 4), np.nan)  # the upper arm now (eqs. 9–10)
-        q_ra[good] = quat.mul(quat.about_z(delta[good]), q_now[good])
-        x_now = quat.x_axis(q_ra)
-        # ... and its axis when the robot measured the elbow: Rz(δ) q_IA e_x
-        x_a = np.full((n, 3), np.nan)
-        x_a[good] = quat.rotate_z(delta[good], quat.x_axis(q_pair[good]))
-        angle = self._elbow_angle(t, x_now, x_a, x_c, latency)
-        la = self._arm_lengths(t, p_e, spec)
-        shoulder = kin.shoulder_position(p_e, x_a, la)
-        nominal = self._nominal(t, shoulder, good, spec)
-        disp = self._displacement(shoulder, nominal)
-        conv_angle = np.full(n, np.nan)
-        has_nom = np.all(np.isfinite(nominal), axis=1)
-        if np.any(has_nom):
-            _, conv_angle[has_nom] = kin.conventional(p_e[has_nom], x_c[has_nom], nominal[has_nom])
-        self.quality.rows_without_imu += int(np.count_nonzero(~with_imu))
-        # compensation rule (§3.4)
-        # segment first: a completed cycle sets the tolerated duration from its end on
-        boundaries = self._segmenter.update(t, wrist)
-        codes, changes = self._indicator.update(t, disp, None, boundaries)
-        verdicts = self._judge.update(t, codes, boundaries, disp)
-        episodes = self._episodes.update(t, codes, disp)
+        block = self._rowbuf.view()[:n].copy()
+        self._rowbuf.drop(n)
+        # compensation rule (§3.4); segment first: a completed cycle sets the tolerated
+        # duration from its end on
+        boundaries: list[float]
+        tt: Any
+        disp: Any
+        if n <= _SMALL:
+            flat: list[float] = []
+            boundaries, disp = [], []
+            seg = self._segmenter
+            for tj, dj, rj in zip(t, dec, block.tolist(), strict=True):
+                row = self._row(tj, dj, rj)
+                flat.extend(row)
+                disp.append(row[_DISP])
+                boundaries.extend(seg.push(tj, rj[0], rj[1]))
+            tt = t
+            m = np.array(flat).reshape(n, _NCOL)
+        else:
+            with np.errstate(invalid="ignore", divide="ignore"):  # NaN where no estimate
+                m = self._rows_vector(np.array(t), dec, block)
+            tt, disp = m[:, 0], m[:, _DISP]
+            boundaries = self._segmenter.update(tt, block[:, 0:3])
+        cols = {name: m[:, a] if w == 1 else m[:, a : a + w] for name, a, w in _LAYOUT}
+        cols["heading_converged"] = m[:, _COL["heading_converged"]] > 0.5
+        codes, changes = self._indicator.update(tt, disp, None, boundaries)
+        verdicts = self._judge.update(tt, codes, boundaries, disp)
+        episodes = self._episodes.update(tt, codes, disp)
+        cols["state"] = codes
         fb: list[dict[str, Any]] = [{"t": tc, "type": "state", "state": st} for tc, st in changes]
         fb.extend(
             {
@@ -941,69 +1024,127 @@ class Pipeline:
             if v.compensatory is not None
         )
         fb.sort(key=lambda f: f.get("t", f.get("end", 0.0)))
-        std_deg = np.degrees(std)
-        out.rows = {
-            "t": t,
-            "elbow": p_e,
-            "shoulder": shoulder,
-            "elbow_angle_deg": angle,
-            "heading_offset_deg": np.where(
-                np.isfinite(delta) & ok, np.degrees(np.mod(delta, 2 * np.pi)), np.nan
-            ),
-            "heading_converged": good,
-            "shoulder_displacement_m": disp,
-            "state": codes.astype(np.int8),
-            "q_ra": q_ra,
-            "heading_std_deg": np.where(np.isfinite(std_deg), std_deg, np.nan),
-            "heading_confidence": np.where(
-                np.isfinite(std_deg), 1.0 / (1.0 + (std_deg / 3.0) ** 2), 0.0
-            ),
-            "upper_arm_elevation_deg": np.degrees(np.arccos(np.clip(-x_now[:, 2], -1.0, 1.0))),
-            "upper_arm_azimuth_deg": np.degrees(np.arctan2(x_now[:, 0], x_now[:, 1])),
-            "nominal_shoulder": nominal,
-            "conv_elbow_angle_deg": conv_angle,
-            "wrist": wrist,
-            "upper_arm_length_m": la,
-        }
+        out.rows = cols
         out.feedback = fb
         out.cycles = list(verdicts)
         out.episodes = episodes
         return out
 
-    def _elbow_angle(
-        self, t: Array, x_now: Array, x_pair: Array, x_c: Array, latency: Array
-    ) -> Array:
+    def _row(self, t: float, dec: tuple[bool, int], r: list[float]) -> list[float]:
+        """One row in Python floats, in ``_LAYOUT`` order (state filled in later)."""
+        M = rows.SCALAR
+        p = self.params
+        with_imu, k = dec
+        s = t - p.robot_time_offset_s
+        i = bisect.bisect_right(self._snap_t, s - self._snap_lag) - 1
+        snap = self._snaps[i] if i >= 0 else NAN8
+        lat = snap[7]
+        latency = M.maximum(lat, 0.0) if math.isfinite(lat) else 0.0
+        ok_p, q_p, seg_p = self._imu.at(s - latency)
+        ok_n, q_n, seg_n = self._imu.at(s)
+        ok = ok_p and with_imu and ok_n and seg_n == seg_p
+        h = rows.heading(M, s, ok, snap, seg_p)
+        q_ra, x_now, x_a = rows.upper_arm(M, h.delta, h.good, q_n, q_p)
+        wrist, p_e, x_c = tuple(r[0:3]), tuple(r[3:6]), tuple(r[6:9])
+        prev_t, prev = self._xc_prev_t, self._xc_prev
+        self._xc_prev_t, self._xc_prev = t, x_c
+        angle = self._angle(M, x_now, x_a, x_c, prev, t - prev_t, latency)
+        la = self._arm_length(t, r[3:6], k)
+        sh = rows.shoulder(p_e, x_a, la)
+        nom = self._nominal_at(t, sh, h.good, k)
+        disp = rows.displacement(M, sh, nom, p.displacement_norm)
+        conv = rows.angle_deg(
+            M, rows.unit(M, tuple(e - c for e, c in zip(p_e, nom, strict=True))), x_c
+        )
+        elev, azim = rows.elevation_azimuth(M, x_now)
+        if not with_imu:
+            self.quality.rows_without_imu += 1
+        good = 1.0 if h.good else 0.0
+        return [
+            t, *p_e, *sh, angle, h.offset_deg, good, disp, math.nan, *q_ra, h.std_deg,
+            h.confidence, elev, azim, *nom, conv, *wrist, la,
+        ]  # fmt: skip
+
+    def _rows_vector(self, t: Array, dec: list[tuple[bool, int]], block: Array) -> Array:
+        """:meth:`_row` for many rows at once, as arrays: (n, ``_NCOL``)."""
+        M = rows.VECTOR
+        p = self.params
+        n = len(t)
+        s = t - p.robot_time_offset_s
+        with_imu = np.array([d[0] for d in dec], dtype=bool)
+        spec = [d[1] for d in dec]
+        if self._snaps:
+            si = np.searchsorted(np.array(self._snap_t), s - self._snap_lag, side="right") - 1
+            sn = np.array(self._snaps)[np.maximum(si, 0)]
+            sn[si < 0] = np.nan
+        else:
+            sn = np.full((n, 8), np.nan)
+        snap = tuple(sn[:, j] for j in range(8))
+        latency = np.where(np.isfinite(sn[:, 7]), np.maximum(sn[:, 7], 0.0), 0.0)
+        ok_p, q_p, seg_p = self._imu.interp(s - latency)
+        ok_n, q_n, seg_n = self._imu.interp(s)
+        ok = ok_p & with_imu & ok_n & (seg_n == seg_p)
+        h = rows.heading(M, s, ok, snap, seg_p)
+        q_ra, x_now, x_a = rows.upper_arm(M, h.delta, h.good, q_n, q_p)
+        wrist = block[:, 0:3]
+        p_e = tuple(block[:, 3 + i] for i in range(3))
+        x_c = tuple(block[:, 6 + i] for i in range(3))
+        prev_t = np.concatenate(([self._xc_prev_t], t[:-1]))
+        prev = tuple(np.concatenate(([self._xc_prev[i]], x_c[i][:-1])) for i in range(3))
+        self._xc_prev_t, self._xc_prev = float(t[-1]), tuple(float(c[-1]) for c in x_c)
+        angle = self._angle(M, x_now, x_a, x_c, prev, t - prev_t, latency)
+        tl = t.tolist()
+        pe_rows = block[:, 3:6].tolist()
+        la = np.array(
+            [self._arm_length(tj, pj, k) for tj, pj, k in zip(tl, pe_rows, spec, strict=True)]
+        )
+        sh = rows.shoulder(p_e, x_a, la)
+        sh_rows = np.column_stack(sh).tolist()
+        nom_rows = [
+            self._nominal_at(tj, tuple(sj), gj, k)
+            for tj, sj, gj, k in zip(tl, sh_rows, h.good.tolist(), spec, strict=True)
+        ]
+        nom_a = np.array(nom_rows).reshape(n, 3)
+        nom = tuple(nom_a[:, i] for i in range(3))
+        disp = rows.displacement(M, sh, nom, p.displacement_norm)
+        conv = rows.angle_deg(
+            M, rows.unit(M, tuple(e - c for e, c in zip(p_e, nom, strict=True))), x_c
+        )
+        elev, azim = rows.elevation_azimuth(M, x_now)
+        self.quality.rows_without_imu += int(np.count_nonzero(~with_imu))
+        return np.column_stack(
+            (
+                t, *p_e, *sh, angle, h.offset_deg, h.good, disp, np.full(n, np.nan), *q_ra,
+                h.std_deg, h.confidence, elev, azim, *nom, conv, wrist, la,
+            )
+        )  # fmt: skip
+
+    def _angle(
+        self,
+        M: Any,
+        x_now: tuple[Any, ...],
+        x_pair: tuple[Any, ...],
+        x_c: tuple[Any, ...],
+        prev: tuple[Any, ...],
+        dt: Any,
+        latency: Any,
+    ) -> Any:
         """Elbow angle (eq. 11) at the row's time.
 
         The robot's forearm axis is ``latency`` old while the IMU's upper-arm axis is fresh;
-        the forearm axis is carried forward along its last robot step (``extrapolate``)
-        so both segments describe the same instant.
+        ``extrapolate`` carries the forearm axis forward along its last robot step (``prev``,
+        ``dt`` earlier) so both segments describe the same instant; ``fresh`` pairs them as
+        they are; ``paired`` uses the upper arm at the robot's instant.
         """
         mode = self.params.elbow_angle_timing
         if mode == "paired":
-            return kin.elbow_angle_deg(x_pair, x_c)
-        prev_t = np.concatenate(([self._xc_prev_t], t[:-1]))
-        prev = np.concatenate((self._xc_prev[None], x_c[:-1]))
-        self._xc_prev_t, self._xc_prev = float(t[-1]), x_c[-1].copy()
-        dt = t - prev_t
+            return rows.angle_deg(M, x_pair, x_c)
         if mode == "extrapolate":
-            step = np.where((dt > 0) & (dt < 0.2), latency / np.where(dt > 0, dt, 1.0), 0.0)
-            x_c = kin.unit(x_c + step[:, None] * (x_c - prev))
-        return kin.elbow_angle_deg(x_now, x_c)
+            x_c = rows.extrapolate(M, x_c, prev, dt, latency)
+        return rows.angle_deg(M, x_now, x_c)
 
-    def _take_rows(self, n: int) -> tuple[Array, Array, Array]:
-        def take(buf: list[Array]) -> Array:
-            arr = np.concatenate(buf) if len(buf) > 1 else buf[0]
-            head, rest = arr[:n], arr[n:]
-            buf.clear()
-            if len(rest):
-                buf.append(rest)
-            return head
-
-        return take(self._row_wrist), take(self._row_pe), take(self._row_xc)
-
-    def _arm_lengths(self, t: Array, p_e: Array, spec: Idx) -> Array:
-        """Upper-arm length per row: the parameter, or measured at the rope reference.
+    def _arm_length(self, t: float, p_e: list[float], k: int) -> float:
+        """Upper-arm length at a row: the parameter, or measured at the rope reference.
 
         While the therapist holds the rope end on the shoulder (``shoulder_reference``), the
         shoulder is at ``p_ref`` and the robot measures the elbow, so ``l_A = |p_E − p_ref|``
@@ -1012,81 +1153,70 @@ class Pipeline:
         needing the heading. Out-of-bounds or moving-arm measurements are ignored.
         """
         p = self.params
-        la = np.full(len(t), self._arm_len)
         if p.arm_length != "calibrate":
-            return la
-        for j0 in range(len(t)):
-            k = int(spec[j0])
-            kind, t_e, point = self._specs[k]
-            if kind != "point" or point is None or k == self._arm_spec_done:
-                continue
-            if self._arm_spec != k:
-                self._arm_spec, self._arm_pts = k, []
-            if t[j0] <= t_e + p.arm_reference_s:
-                self._arm_pts.append(p_e[j0])
-                continue
-            self._arm_spec_done = k
-            pts = np.array(self._arm_pts)
-            self._arm_pts = []
-            if len(pts) >= 3 and float(np.max(np.std(pts, axis=0))) < 0.01:
-                length = float(np.linalg.norm(pts.mean(axis=0) - point))
-                lo_b, hi_b = p.arm_length_bounds_m
-                if lo_b <= length <= hi_b:
-                    self._arm_len = length
-                    self.arm_length_estimate = length
-                    la[j0:] = length
-                    continue
-            self.quality.reject("arm_reference_unusable")
-        return la
+            return self._arm_len
+        kind, t_e, point = self._specs[k]
+        if kind != "point" or point is None or k == self._arm_spec_done:
+            return self._arm_len
+        if self._arm_spec != k:
+            self._arm_spec, self._arm_pts = k, []
+        if t <= t_e + p.arm_reference_s:
+            self._arm_pts.append(np.array(p_e))
+            return self._arm_len
+        self._arm_spec_done = k
+        pts = np.array(self._arm_pts)
+        self._arm_pts = []
+        if len(pts) >= 3 and float(np.max(np.std(pts, axis=0))) < 0.01:
+            length = float(np.linalg.norm(pts.mean(axis=0) - point))
+            lo_b, hi_b = p.arm_length_bounds_m
+            if lo_b <= length <= hi_b:
+                self._arm_len = length
+                self.arm_length_estimate = length
+                return length
+        self.quality.reject("arm_reference_unusable")
+        return self._arm_len
 
-    def _nominal(self, t: Array, shoulder: Array, good: Idx, spec: Idx) -> Array:
-        """Nominal shoulder per row (contract §4): parameter, rope reference, or automatic
+    def _nominal_at(
+        self, t: float, shoulder: tuple[float, ...], good: bool, k: int
+    ) -> tuple[float, ...]:
+        """Nominal shoulder at a row (contract §4): parameter, rope reference, or automatic
         (mean estimate over ``auto_nominal_s`` after convergence / after a reset event)."""
-        n = len(t)
-        nom = np.full((n, 3), np.nan)
-        for j in range(n):
-            k = int(spec[j])
-            if k != self._nom_spec:
-                self._nom_spec = k
-                kind, _, point = self._specs[k]
-                self._nom_point = point.copy() if point is not None else None
-                self._nom_acc, self._nom_t0 = [], None
-                if point is not None and kind == "point":
-                    self._ref_point = point
-            if self._nom_point is None and good[j]:
-                if self._nom_t0 is None:
-                    self._nom_t0 = float(t[j])
-                self._nom_acc.append(shoulder[j])
-                if t[j] - self._nom_t0 >= self.params.auto_nominal_s:
-                    self._nom_point = np.mean(self._nom_acc, axis=0)
-                    self._nom_acc = []
-            if self._nom_point is not None:
-                nom[j] = self._nom_point
-        return nom
-
-    def _displacement(self, shoulder: Array, nominal: Array) -> Array:
-        d = shoulder - nominal
-        if self.params.displacement_norm == "horizontal":
-            out: Array = np.hypot(d[:, 0], d[:, 1])
-            return out
-        return np.linalg.norm(d, axis=1)  # type: ignore[no-any-return]
+        if k != self._nom_spec:
+            self._nom_spec = k
+            kind, _, point = self._specs[k]
+            self._nom_point = None if point is None else tuple(point.tolist())
+            self._nom_acc, self._nom_t0 = [], None
+            if point is not None and kind == "point":
+                self._ref_point = point
+        if self._nom_point is None and good:
+            if self._nom_t0 is None:
+                self._nom_t0 = t
+            self._nom_acc.append(shoulder)
+            if t - self._nom_t0 >= self.params.auto_nominal_s:
+                m = len(self._nom_acc)
+                self._nom_point = tuple(math.fsum(c) / m for c in zip(*self._nom_acc, strict=True))
+                self._nom_acc = []
+        return NAN3 if self._nom_point is None else self._nom_point
 
     def _trim(self) -> None:
         # keep what the next rows, grid points and heading windows can still need
+        off = self.params.robot_time_offset_s
         keep = (
             self._row_t[self._n_done] if self._n_done < len(self._row_t) else self._robot_frontier
         )
-        keep = min(keep - self.params.robot_time_offset_s, self._grid.frontier) - 1.0
+        keep = min(keep - off, self._grid.frontier) - 1.0
         if math.isfinite(keep):
             self._imu.trim(keep)
             self._robot.trim(keep)
-        self._grid.trim(self._grid.frontier - max(self.hp.window_s, self.hp.fit_window_s) - 1.0)
+        if self._grid_trimmed != self._grid.frontier:
+            self._grid_trimmed = self._grid.frontier
+            self._grid.trim(self._grid.frontier - max(self.hp.window_s, self.hp.fit_window_s) - 1.0)
         if self._n_done < len(self._row_t):
-            s_next = self._row_t[self._n_done] - self.params.robot_time_offset_s
-            cut = int(np.searchsorted(self._snap_t, s_next - 1.0, side="right")) - 2
+            s_next = self._row_t[self._n_done] - off
+            cut = bisect.bisect_right(self._snap_t, s_next - 1.0) - 2
             if cut > 0:
-                self._snaps = self._snaps[cut:]
-                self._snap_t = self._snaps[:, 0]
+                del self._snaps[:cut]
+                del self._snap_t[:cut]
         # forget rows already emitted (indices stay consistent through the offset)
         if self._n_done > 4096:
             k = self._n_done
@@ -1094,3 +1224,17 @@ class Pipeline:
             del self._decisions[:k]
             self._n_decided -= k
             self._n_done = 0
+
+
+_SMALL = 16  # up to this many rows or samples per call take the Python-float path
+NAN3 = (math.nan,) * 3
+NAN4 = (math.nan,) * 4
+NAN8 = (math.nan,) * 8
+_WIDTHS = {"elbow": 3, "shoulder": 3, "q_ra": 4, "nominal_shoulder": 3, "wrist": 3}
+_LAYOUT: list[tuple[str, int, int]] = []
+for _name in ROW_COLUMNS:
+    _w = _WIDTHS.get(_name, 1)
+    _LAYOUT.append((_name, sum(w for _, _, w in _LAYOUT), _w))
+_COL = {name: a for name, a, _ in _LAYOUT}
+_NCOL = sum(w for _, _, w in _LAYOUT)
+_DISP = _COL["shoulder_displacement_m"]

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from estimators.buffers import RowBuffer
 from estimators.compensation import CompensationParams, FloatArray
-from estimators.cycles import RowBuffer
 
 
 @dataclass(frozen=True, slots=True)
@@ -95,6 +95,20 @@ class CycleJudge:
         boundaries: Sequence[float] = (),
         displacement: ArrayLike | None = None,
     ) -> list[CycleVerdict]:
+        if isinstance(t, list) and len(t) <= 8:
+            # the live case: a row or two as floats (numpy's per-call cost would dominate)
+            n = len(t)
+            cl: list[float] = np.asarray(codes).tolist()
+            if len(cl) != n:
+                raise ValueError("t and codes must both have shape (N,)")
+            dl: list[float] = (
+                [math.nan] * n if displacement is None else np.asarray(displacement).tolist()
+            )
+            for row in zip(t, cl, dl, strict=True):
+                self._buf.push(row)
+            if n:
+                self._data_t = float(t[-1])
+            return self._after_rows(boundaries)
         tt = np.asarray(t, dtype=np.float64)
         n = tt.shape[0]
         cc = np.asarray(codes)
@@ -110,6 +124,9 @@ class CycleJudge:
                 rows[:, 2] = np.asarray(displacement, dtype=np.float64)
             self._buf.append(rows)
             self._data_t = float(tt[-1])
+        return self._after_rows(boundaries)
+
+    def _after_rows(self, boundaries: Sequence[float]) -> list[CycleVerdict]:
         for b in boundaries:
             self._add_boundary(b)
         verdicts: list[CycleVerdict] = []
@@ -137,8 +154,11 @@ class CycleJudge:
             keep = min(keep, self._last_b)
         for start, _, _ in self._pending:
             keep = min(keep, start)
-        bt = self._buf.view()[:, 0]
-        self._buf.drop(int(np.searchsorted(bt, keep, side="right")) - 1)
+        buf = self._buf
+        if len(buf) < 2 or buf.a.item(buf.lo + 1, 0) > keep:
+            return  # nothing to drop (the usual case, checked without numpy calls)
+        bt = buf.view()[:, 0]
+        buf.drop(int(np.searchsorted(bt, keep, side="right")) - 1)
 
     def _judge(self, view: FloatArray, start: float, end: float, source: str) -> CycleVerdict:
         p = self.params

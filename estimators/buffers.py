@@ -1,0 +1,72 @@
+"""A growable FIFO of float64 rows: amortised O(1) append and drop-front.
+
+Streaming stages append a few rows per message and forget old ones; concatenating numpy
+arrays for that would copy the whole buffer on every message.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TypeAlias
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray: TypeAlias = NDArray[np.float64]
+
+
+class RowBuffer:
+    """FIFO of float64 rows (``width`` columns). :meth:`view` and :meth:`col` return views
+    that are valid until the next :meth:`append`/:meth:`push`."""
+
+    def __init__(self, width: int, capacity: int = 256) -> None:
+        self.a = np.empty((max(capacity, 16), width))
+        self.lo = 0
+        self.hi = 0
+
+    def __len__(self) -> int:
+        return self.hi - self.lo
+
+    def _reserve(self, n: int) -> None:
+        live = self.hi - self.lo
+        if live + n > self.a.shape[0] // 2:
+            grown = np.empty((2 * (live + n), self.a.shape[1]))
+            grown[:live] = self.a[self.lo : self.hi]
+            self.a = grown
+        else:
+            self.a[:live] = self.a[self.lo : self.hi]
+        self.lo, self.hi = 0, live
+
+    def append(self, rows: FloatArray) -> None:
+        n = rows.shape[0]
+        if self.hi + n > self.a.shape[0]:
+            self._reserve(n)
+        self.a[self.hi : self.hi + n] = rows
+        self.hi += n
+
+    def push(self, row: Sequence[float]) -> None:
+        """Append one row."""
+        if self.hi >= self.a.shape[0]:
+            self._reserve(1)
+        self.a[self.hi] = row
+        self.hi += 1
+
+    def view(self) -> FloatArray:
+        return self.a[self.lo : self.hi]
+
+    def cols(self, lo: int, hi: int) -> FloatArray:
+        """Columns ``lo:hi`` of the live rows, (n, hi − lo)."""
+        return self.a[self.lo : self.hi, lo:hi]
+
+    def col(self, j: int) -> FloatArray:
+        """Column ``j`` of the live rows, (n,)."""
+        return self.a[self.lo : self.hi, j]
+
+    def row(self, i: int) -> list[float]:
+        """Live row ``i`` as floats."""
+        out: list[float] = self.a[self.lo + i].tolist()
+        return out
+
+    def drop(self, k: int) -> None:
+        """Remove the ``k`` oldest rows."""
+        self.lo = min(self.lo + max(k, 0), self.hi)

@@ -1,0 +1,250 @@
+"""Per-row formulas of the pipeline's last stage (paper eqs. 9–12), written once for both
+Python floats and numpy arrays.
+
+The live service polls after every robot sample, so a row is usually computed alone; numpy's
+per-call overhead would then cost ~20× the arithmetic. ``rehab analyze`` computes thousands
+of rows at once, where numpy wins. Both run the *same* expressions below, with a namespace
+``M`` that is either :data:`SCALAR` (floats) or :data:`VECTOR` (arrays of shape (n,)):
+
+- arithmetic (``+ - * /``), comparisons and ``sqrt`` are IEEE-exact in both;
+- the transcendental functions and ``%`` are Python's ``math`` in both (mapped over the
+  array in :data:`VECTOR`), because numpy's may be SIMD versions with other last bits;
+- sums are written out in a fixed order (numpy's reductions pair terms differently);
+- both branches of a ``where`` are evaluated, so nothing may raise on NaN or on the
+  discarded branch: squares are ``x * x`` (``**`` raises on overflow), divisors are kept
+  non-zero, ``acos`` gets clipped input.
+
+So a row has bit-identical values however the rows are batched (tested).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import numpy as np
+
+RAD2DEG = 180.0 / math.pi
+TWO_PI = 2.0 * math.pi
+DRIFT_STD_RAD_S = math.radians(0.1)  # heading uncertainty growth between updates, rad/s
+NAN = math.nan
+INF = math.inf
+
+
+def _s_where(c: Any, a: Any, b: Any) -> Any:
+    return a if c else b
+
+
+def _s_maximum(a: float, b: float) -> float:
+    return a if (a >= b or a != a) else b  # NaN propagates, as np.maximum
+
+
+def _s_clip(x: float, lo: float, hi: float) -> float:
+    return lo if x < lo else hi if x > hi else x  # NaN passes, as np.clip
+
+
+def _s_mod(x: float, m: float) -> float:
+    return x % m if math.isfinite(x) else NAN
+
+
+def _s_atan2(y: float, x: float) -> float:
+    return math.atan2(y, x)
+
+
+def _s_trig(f: Callable[[float], float]) -> Callable[[float], float]:
+    def g(x: float) -> float:
+        return f(x) if math.isfinite(x) else NAN
+
+    return g
+
+
+class _Scalar:
+    """Namespace for Python floats and bools."""
+
+    where = staticmethod(_s_where)
+    maximum = staticmethod(_s_maximum)
+    clip = staticmethod(_s_clip)
+    mod = staticmethod(_s_mod)
+    atan2 = staticmethod(_s_atan2)
+    cos = staticmethod(_s_trig(math.cos))
+    sin = staticmethod(_s_trig(math.sin))
+    acos = staticmethod(math.acos)  # only ever given clipped input
+    sqrt = staticmethod(math.sqrt)  # only ever given sums of squares
+    isfinite = staticmethod(math.isfinite)
+
+    @staticmethod
+    def not_(a: bool) -> bool:
+        return not a
+
+
+def _v_map(f: Callable[..., float], *a: Any) -> Any:
+    cols = [np.asarray(x, dtype=np.float64).tolist() for x in a]
+    return np.fromiter(map(f, *cols), dtype=np.float64, count=len(cols[0]))
+
+
+class _Vector:
+    """Namespace for numpy arrays of shape (n,), bit-identical to :class:`_Scalar`."""
+
+    where = staticmethod(np.where)
+    maximum = staticmethod(np.maximum)
+    clip = staticmethod(np.clip)
+    sqrt = staticmethod(np.sqrt)  # correctly rounded, as math.sqrt
+    isfinite = staticmethod(np.isfinite)
+
+    @staticmethod
+    def mod(x: Any, m: float) -> Any:
+        return _v_map(lambda v: _s_mod(v, m), x)
+
+    @staticmethod
+    def atan2(y: Any, x: Any) -> Any:
+        return _v_map(math.atan2, y, x)
+
+    @staticmethod
+    def cos(x: Any) -> Any:
+        return _v_map(_Scalar.cos, x)
+
+    @staticmethod
+    def sin(x: Any) -> Any:
+        return _v_map(_Scalar.sin, x)
+
+    @staticmethod
+    def acos(x: Any) -> Any:
+        return _v_map(math.acos, x)
+
+    @staticmethod
+    def not_(a: Any) -> Any:
+        return ~a
+
+
+SCALAR: Any = _Scalar
+VECTOR: Any = _Vector
+
+
+def nlerp(M: Any, a: tuple[Any, ...], b: tuple[Any, ...], s: Any) -> tuple[Any, ...]:
+    """Normalised linear interpolation of unit quaternions ``a``, ``b`` (w, x, y, z), shortest
+    arc, ``s`` in [0, 1]. Between IMU samples it differs from slerp far below sensor noise."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    sign = M.where(((aw * bw + ax * bx) + ay * by) + az * bz < 0.0, -1.0, 1.0)
+    w = aw + s * (sign * bw - aw)
+    x = ax + s * (sign * bx - ax)
+    y = ay + s * (sign * by - ay)
+    z = az + s * (sign * bz - az)
+    n = M.sqrt(((w * w + x * x) + y * y) + z * z)
+    n = M.where(n > 0.0, n, NAN)
+    return w / n, x / n, y / n, z / n
+
+
+class Heading(NamedTuple):
+    """Heading offset per row and what follows from it (all (n,) or floats)."""
+
+    delta: Any  # rad, NaN where unusable
+    std_deg: Any  # heading uncertainty, °, NaN where none
+    confidence: Any  # 0..1
+    offset_deg: Any  # δ in [0, 360) °, NaN where none
+    good: Any  # bool: a converged heading applies
+
+
+def heading(
+    M: Any,
+    s: Any,
+    ok: Any,
+    snap: tuple[Any, ...],
+    seg: Any,
+) -> Heading:
+    """The heading at row time ``s`` (s) from the latest update snapshot
+    ``(t, δ, rate, t_update, std, converged, segment, latency)``: drift predicted linearly
+    (improved method), its uncertainty grown by 0.1 °/s since the update. ``ok``: the IMU
+    orientation exists at the row; ``seg``: its IMU segment (a reset voids the heading)."""
+    _, d, rate, t_upd, std0, conv, sseg, _ = snap
+    use = ok & M.isfinite(d) & (sseg == seg)
+    since = M.maximum(0.0, s - t_upd)
+    delta = M.where(use, d + rate * (s - t_upd), NAN)
+    grow = DRIFT_STD_RAD_S * since
+    std = M.where(use, M.sqrt(std0 * std0 + grow * grow), INF)
+    good = use & (conv > 0.0) & M.isfinite(delta)
+    std_deg = std * RAD2DEG
+    finite = M.isfinite(std_deg)
+    r = std_deg / 3.0
+    conf = M.where(finite, 1.0 / (1.0 + r * r), 0.0)
+    offset = M.where(M.isfinite(delta) & ok, M.mod(delta, TWO_PI) * RAD2DEG, NAN)
+    return Heading(delta, M.where(finite, std_deg, NAN), conf, offset, good)
+
+
+def upper_arm(
+    M: Any, delta: Any, good: Any, q_now: tuple[Any, ...], q_pair: tuple[Any, ...]
+) -> tuple[tuple[Any, ...], tuple[Any, ...], tuple[Any, ...]]:
+    """``q_RA = Rz(δ) ⊗ q_IA`` (eqs. 9–10) now, its x axis now, and the x axis ``x_A`` at the
+    instant the robot measured the elbow (``q_pair``); NaN where not ``good``."""
+    h = delta / 2.0
+    c, sn = M.cos(h), M.sin(h)
+    w, x, y, z = q_now
+    qw = M.where(good, c * w - sn * z, NAN)
+    qx = M.where(good, c * x - sn * y, NAN)
+    qy = M.where(good, c * y + sn * x, NAN)
+    qz = M.where(good, c * z + sn * w, NAN)
+    xn = _x_axis(qw, qx, qy, qz)
+    pw, px, py, pz = q_pair
+    ax, ay, az = _x_axis(pw, px, py, pz)
+    cd, sd = M.cos(delta), M.sin(delta)
+    xa = (
+        M.where(good, cd * ax - sd * ay, NAN),
+        M.where(good, sd * ax + cd * ay, NAN),
+        M.where(good, az, NAN),
+    )
+    return (qw, qx, qy, qz), xn, xa
+
+
+def _x_axis(w: Any, x: Any, y: Any, z: Any) -> tuple[Any, Any, Any]:
+    return 1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)
+
+
+def unit(M: Any, v: tuple[Any, ...]) -> tuple[Any, ...]:
+    x, y, z = v
+    n = M.sqrt((x * x + y * y) + z * z)
+    n = M.where(n > 0.0, n, NAN)
+    return x / n, y / n, z / n
+
+
+def angle_deg(M: Any, a: tuple[Any, ...], b: tuple[Any, ...]) -> Any:
+    """Angle between unit vectors, ° (eq. 11 for x_A and x_C)."""
+    c = (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]
+    return M.acos(M.clip(c, -1.0, 1.0)) * RAD2DEG
+
+
+def extrapolate(
+    M: Any, x_c: tuple[Any, ...], prev: tuple[Any, ...], dt: Any, latency: Any
+) -> tuple[Any, ...]:
+    """The forearm axis carried ``latency`` s forward along its last robot step (``dt`` s)."""
+    step = M.where((dt > 0.0) & (dt < 0.2), latency / M.where(dt > 0.0, dt, 1.0), 0.0)
+    return unit(M, tuple(c + step * (c - p) for c, p in zip(x_c, prev, strict=True)))
+
+
+def conventional_angle(
+    M: Any, p_e: tuple[Any, ...], nominal: tuple[Any, ...], x_c: tuple[Any, ...]
+) -> Any:
+    """The robot-only baseline's elbow angle, °: the shoulder assumed fixed at the nominal
+    point, ``x_A = normalize(p_E − p_S,nom)``; NaN without a nominal shoulder."""
+    x_a = unit(M, (p_e[0] - nominal[0], p_e[1] - nominal[1], p_e[2] - nominal[2]))
+    return angle_deg(M, x_a, x_c)
+
+
+def elevation_azimuth(M: Any, x: tuple[Any, ...]) -> tuple[Any, Any]:
+    """Upper-arm elevation (0° hanging, 90° horizontal) and azimuth (0° = +y, 90° = +x), °."""
+    elev = M.acos(M.clip(-x[2], -1.0, 1.0)) * RAD2DEG
+    return elev, M.atan2(x[0], x[1]) * RAD2DEG
+
+
+def shoulder(p_e: tuple[Any, ...], x_a: tuple[Any, ...], la: Any) -> tuple[Any, ...]:
+    """Shoulder (eq. 12): ``p_S = p_E − l_A · x_A``."""
+    return tuple(e - la * a for e, a in zip(p_e, x_a, strict=True))
+
+
+def displacement(M: Any, s: tuple[Any, ...], nom: tuple[Any, ...], norm: str) -> Any:
+    """Distance from the nominal shoulder: horizontal (x, y) or 3D, m."""
+    dx, dy, dz = s[0] - nom[0], s[1] - nom[1], s[2] - nom[2]
+    sq = dx * dx + dy * dy
+    if norm == "3d":
+        sq = sq + dz * dz
+    return M.sqrt(sq)

@@ -1,0 +1,124 @@
+"""The per-row formulas give bit-identical numbers on floats and on arrays."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from estimators import rows
+
+M_S, M_V = rows.SCALAR, rows.VECTOR
+
+finite = st.floats(-10.0, 10.0, allow_nan=False, allow_infinity=False)
+maybe = st.one_of(finite, st.just(math.nan))
+
+
+def _same(scalar_out: object, vector_out: object) -> None:
+    """Each scalar (row by row) equals the vector result, NaN included, bit for bit."""
+    s = np.asarray(scalar_out, dtype=np.float64)
+    v = np.asarray(vector_out, dtype=np.float64)
+    assert s.shape == v.shape
+    assert np.array_equal(s.view(np.int64), v.view(np.int64)) or np.array_equal(
+        s, v, equal_nan=True
+    ), (s, v)
+
+
+def _quat(w: float, x: float, y: float, z: float) -> tuple[float, ...]:
+    n = math.sqrt(w * w + x * x + y * y + z * z) or 1.0
+    return (w / n, x / n, y / n, z / n)
+
+
+quats = st.tuples(finite, finite, finite, finite).map(lambda q: _quat(*q))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            finite,  # s
+            st.booleans(),  # ok
+            st.tuples(
+                finite,
+                maybe,
+                maybe,
+                finite,
+                st.floats(0, 1),
+                st.sampled_from([0.0, 1.0]),
+                st.sampled_from([0.0, 1.0, math.nan]),
+                maybe,
+            ),  # snapshot
+            st.sampled_from([0.0, 1.0]),  # segment
+            quats,
+            quats,
+            st.tuples(finite, finite, finite),  # elbow
+            st.floats(0.2, 0.4),  # arm length
+            st.tuples(maybe, finite, finite),  # nominal
+        ),
+        min_size=1,
+        max_size=12,
+    )
+)
+def test_scalar_rows_equal_vector(data: list[tuple]) -> None:  # type: ignore[type-arg]
+    scalar = []
+    for s, ok, snap, seg, q_now, q_pair, p_e, la, nom in data:
+        h = rows.heading(M_S, s, ok, snap, seg)
+        q_ra, x_now, x_a = rows.upper_arm(M_S, h.delta, h.good, q_now, q_pair)
+        sh = rows.shoulder(p_e, x_a, la)
+        scalar.append(
+            (
+                *h[:4],
+                float(h.good),
+                *q_ra,
+                *x_now,
+                *x_a,
+                rows.angle_deg(M_S, x_now, rows.unit(M_S, p_e)),
+                *rows.elevation_azimuth(M_S, x_now),
+                rows.displacement(M_S, sh, nom, "3d"),
+                *rows.nlerp(M_S, q_now, q_pair, 0.3),
+            )
+        )
+    cols = list(zip(*data, strict=True))
+
+    def arr(i: int, j: int | None = None) -> np.ndarray:
+        if j is None:
+            return np.array(cols[i])
+        return np.array([c[j] for c in cols[i]])
+
+    snap = tuple(arr(2, j) for j in range(8))
+    q_now = tuple(arr(4, j) for j in range(4))
+    q_pair = tuple(arr(5, j) for j in range(4))
+    p_e = tuple(arr(6, j) for j in range(3))
+    nom = tuple(arr(8, j) for j in range(3))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        h = rows.heading(M_V, arr(0), arr(1).astype(bool), snap, arr(3))
+        q_ra, x_now, x_a = rows.upper_arm(M_V, h.delta, h.good, q_now, q_pair)
+        sh = rows.shoulder(p_e, x_a, arr(7))
+        vector = np.column_stack(
+            (
+                *h[:4],
+                h.good.astype(float),
+                *q_ra,
+                *x_now,
+                *x_a,
+                rows.angle_deg(M_V, x_now, rows.unit(M_V, p_e)),
+                *rows.elevation_azimuth(M_V, x_now),
+                rows.displacement(M_V, sh, nom, "3d"),
+                *rows.nlerp(M_V, q_now, q_pair, np.full(len(data), 0.3)),
+            )
+        )
+    _same(scalar, vector)
+
+
+def test_nothing_raises_on_nan_and_zero() -> None:
+    """Both branches of every ``where`` are evaluated: NaN, ±inf std and zero vectors pass."""
+    nan4 = (math.nan,) * 4
+    h = rows.heading(M_S, 1.0, False, (math.nan,) * 8, 0.0)
+    assert math.isnan(h.delta) and h.confidence == 0.0 and not h.good
+    q_ra, x_now, x_a = rows.upper_arm(M_S, h.delta, h.good, nan4, nan4)
+    assert all(math.isnan(v) for v in (*q_ra, *x_now, *x_a))
+    assert all(math.isnan(v) for v in rows.unit(M_S, (0.0, 0.0, 0.0)))
+    assert math.isnan(rows.angle_deg(M_S, x_now, (1.0, 0.0, 0.0)))
+    assert all(math.isnan(v) for v in rows.extrapolate(M_S, x_now, x_now, 0.0, 0.1))
