@@ -300,12 +300,8 @@ class _ImuStage:
         assert self.vqf is not None
         out = self.vqf.updateBatch(np.ascontiguousarray(gyr), np.ascontiguousarray(acc))
         q_is = out["quat6D"]
-        rows = np.empty((n, self.WIDTH))
-        rows[:, self.T] = t
-        rows[:, self.SEG] = self.seg
-        rows[:, self.Q : self.Q + 4] = q_is if self.identity_mount else quat.mul(q_is, self.mount)
-        rows[:, self.QS : self.QS + 4] = q_is
-        rows[:, self.ACC : self.ACC + 3] = acc
+        q_ia = q_is if self.identity_mount else quat.mul(q_is, self.mount)
+        v = np.zeros((n, 3))
         if self.p.method == "paper":
             assert self.gyro_lp is not None and self.ts is not None
             if self.gyro_zi is None or self.gyro_prev is None:
@@ -316,10 +312,9 @@ class _ImuStage:
             gdot = (gf - prev) / self.ts  # backward difference of the low-passed gyro (eq. 1)
             self.gyro_prev = gf[-1].copy()
             v = kin.inertial_acceleration(q_is, kin.joint_specific_force(acc, gyr, gdot, self.r))
-            rows[:, self.V : self.V + 3] = v
-        else:
-            rows[:, self.V : self.V + 3] = 0.0
-        self.buf.append(rows)
+        # one concatenate: cheaper than assigning six column blocks of a few rows
+        seg = np.full((n, 1), float(self.seg))
+        self.buf.append(np.concatenate((t[:, None], seg, q_ia, q_is, acc, v), axis=1))
         self.tl.extend(t.tolist() if tl is None else tl)
 
     def trim(self, t_keep: float) -> None:
@@ -844,12 +839,15 @@ class Pipeline:
         """Run everything that is ready; return the new rows and feedback."""
         if self._imu_pending:
             pend, self._imu_pending = self._imu_pending, []
-            self._imu.process(
-                np.concatenate([c[0] for c in pend]),
-                np.concatenate([c[1] for c in pend]),
-                np.concatenate([c[2] for c in pend]),
-                self.quality,
-            )
+            if len(pend) == 1:
+                self._imu.process(*pend[0], self.quality)
+            else:
+                self._imu.process(
+                    np.concatenate([c[0] for c in pend]),
+                    np.concatenate([c[1] for c in pend]),
+                    np.concatenate([c[2] for c in pend]),
+                    self.quality,
+                )
         off = self.params.robot_time_offset_s
         if self._robot_pending:
             pend_r, self._robot_pending = self._robot_pending, []
@@ -872,11 +870,15 @@ class Pipeline:
         # fusion grid as far as both streams reach (stamps fed so far)
         until = min(self._imu_frontier - self._grid.half, self._robot_frontier - off)
         # The grid only feeds heading updates: advance it (in one vectorised chunk, with the
-        # same numbers as sample by sample) when the next update falls due.
-        due = self._t_update is None or until >= self._t_update
+        # same numbers as sample by sample) once its output, which ends one grid step before
+        # the last grid point, reaches the next update.
+        dt = self._grid.dt
+        due = self._t_update is None or (
+            math.isfinite(until) and (math.floor(until / dt) - 1) * dt >= self._t_update
+        )
         if self._imu.ts is not None and due:
             self._grid.advance(self._imu, self._robot, until)
-        self._run_heading()
+            self._run_heading()
         out = self._rows()
         self._trim()
         return out
