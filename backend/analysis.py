@@ -13,6 +13,7 @@ import json
 import math
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
+from itertools import islice
 from pathlib import Path
 from typing import Any
 
@@ -38,22 +39,148 @@ _EST_FMT = "%r,%.5f,%.5f,%.5f,%.5f,%.5f,%.5f,%.3f,%.3f,%d,%.5f,%s"
 _DET_FMT = "%r,%.6f,%.6f,%.6f,%.6f,%.3f,%.4f,%.3f,%.3f,%.5f,%.5f,%.5f,%.3f,%.5f,%.5f,%.5f,%.4f"
 
 
-def _lines(fmt: str, cols: list[list[Any]]) -> list[str]:
-    # one C-level format per row; NaN becomes an empty cell ("nan" cannot occur otherwise)
+_Column = np.ndarray | list[str]
+
+
+def _lines(fmt: str, cols: list[_Column]) -> list[str]:
+    """``fmt % row`` per row, NaN as an empty cell ("nan" cannot occur otherwise)."""
+    if len(cols[0]) >= _VECTOR_ROWS:
+        return _table_lines(fmt, cols)
+    return _format_rows(fmt, [c.tolist() if isinstance(c, np.ndarray) else c for c in cols])
+
+
+def _format_rows(fmt: str, cols: list[list[Any]]) -> list[str]:
+    # one C-level format per row
     return [(fmt % row).replace("nan", "") for row in zip(*cols, strict=True)]
+
+
+# Below this many rows (a live poll's one or two) per-row formatting is cheaper than the
+# fixed cost of the column-wise path.
+_VECTOR_ROWS = 64
+
+
+def _table_lines(fmt: str, cols: list[_Column]) -> list[str]:
+    """The same text as :func:`_format_rows`, built column by column as ASCII bytes in numpy
+    (an offline analysis formats ~10^4 rows at once; per-row formatting dominated it)."""
+    n = len(cols[0])
+    parts: list[np.ndarray] = []
+    redo = np.zeros(n, dtype=bool)  # rows the shortcut cannot vouch for: formatted per row
+    for spec, col in zip(fmt.split(","), cols, strict=True):
+        if parts:
+            parts.append(np.full((n, 1), ord(","), np.uint8))
+        if spec == "%r":
+            x = np.asarray(col, dtype=np.float64)
+            text = [repr(v) for v in x.tolist()]
+            for i in np.flatnonzero(np.isnan(x)).tolist():
+                text[i] = ""
+            parts.append(_ascii(text, n))
+        elif spec == "%s":
+            parts.append(_ascii([str(v) for v in col], n))
+        elif spec == "%d":
+            cells, bad = _int_cells(np.asarray(col, dtype=np.int64))
+            parts.append(cells)
+            redo |= bad
+        else:  # "%.<p>f"
+            cells, bad = _fixed_cells(np.asarray(col, dtype=np.float64), int(spec[2:-1]))
+            parts.append(cells)
+            redo |= bad
+    parts.append(np.full((n, 1), ord("\n"), np.uint8))
+    body = np.concatenate(parts, axis=1).tobytes().translate(None, b"\0")  # drop the padding
+    lines = body.decode("ascii").split("\n")
+    lines.pop()  # after the last newline
+    for i in np.flatnonzero(redo).tolist():
+        row = tuple(c[i].item() if isinstance(c, np.ndarray) else c[i] for c in cols)
+        lines[i] = (fmt % row).replace("nan", "")
+    return lines
+
+
+def _ascii(text: list[str], n: int) -> np.ndarray:
+    """Strings as an (n, width) byte matrix, NUL-padded (NUL bytes are dropped at the end)."""
+    a = np.array(text, dtype=np.bytes_)
+    return a.view(np.uint8).reshape(n, a.dtype.itemsize)
+
+
+def _fixed_cells(x: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
+    """``"%.{p}f" % v`` per value as a NUL-padded byte matrix (NaN: an empty cell), and
+    the values it leaves to ``%`` itself (exact ties, inf, beyond 2^52).
+
+    ``%`` rounds the exact binary value. ``v = |x|·10^p`` (10^p exact) is that product
+    rounded once; below 2^52 a ``v`` that is not a half-integer rounds (``rint``) the same
+    way as the exact product, because ±0.5 is a multiple of ``v``'s ulp and the rounding
+    error is half an ulp. A half-integer ``v`` (recorded 6-decimal values printed with 5
+    are common) goes the way of the product's exact rounding error.
+    """
+    nan = np.isnan(x)
+    a = np.abs(x)
+    scale = 10.0**p
+    with np.errstate(over="ignore", invalid="ignore"):
+        v = a * scale
+        ok = v < 2.0**52
+        q = np.rint(np.where(ok, v, 0.0))
+        half = np.flatnonzero(np.abs(v - q) == 0.5)
+    if len(half):
+        vh = v[half]
+        err = _product_error(a[half], scale, vh)
+        q[half] = np.floor(vh) + (err > 0)
+        ok[half[err == 0]] = False  # an exact tie: left to %'s own tie rule
+    cells = _digits(q.astype(np.int64), np.signbit(x), p)
+    cells[nan] = 0
+    return cells, ~ok & ~nan
+
+
+def _product_error(a: np.ndarray, b: float, ab: np.ndarray) -> np.ndarray:
+    """``a·b − ab`` exactly, for ``ab`` the rounded product (Dekker's two-product)."""
+
+    def split(y: Any) -> tuple[Any, Any]:  # Veltkamp: halves of 26 and 27 bits
+        c = 134217729.0 * y
+        hi = c - (c - y)
+        return hi, y - hi
+
+    ah, al = split(a)
+    bh, bl = split(b)
+    return ((ah * bh - ab) + ah * bl + al * bh) + al * bl  # type: ignore[no-any-return]
+
+
+def _int_cells(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    bad = x == np.iinfo(np.int64).min  # no absolute value in int64
+    return _digits(np.abs(np.where(bad, 0, x)), x < 0, 0), bad
+
+
+def _digits(q: np.ndarray, neg: np.ndarray, p: int) -> np.ndarray:
+    """Cells ``[-]<q // 10^p>[.<q % 10^p, p digits>]``: a sign byte, the integer digits
+    (leading zeros as NUL padding), then the point and the fraction."""
+    # int32 division is several times faster than int64's; x - (x // 10) * 10 than x % 10
+    q = q.astype(np.int32 if len(q) and q.max() < 2**31 else np.int64)
+    ip, fp = np.divmod(q, 10**p)
+    nd = len(str(int(ip.max()))) if len(ip) else 1
+    width = 1 + nd + (1 + p if p else 0)
+    cells = np.zeros((len(q), width), np.uint8)
+    cells[:, 0] = np.where(neg, ord("-"), 0)
+    for k in range(nd):  # right to left; the units digit is always written
+        r = ip // 10
+        d = ip - r * 10 + ord("0")
+        cells[:, nd - k] = d if k == 0 else d * (ip > 0)
+        ip = r
+    if p:
+        cells[:, nd + 1] = ord(".")
+        for k in range(p):
+            r = fp // 10
+            cells[:, width - 1 - k] = fp - r * 10 + ord("0")
+            fp = r
+    return cells
 
 
 def estimate_lines(rows: dict[str, np.ndarray]) -> list[str]:
     """Rows of ``estimates.csv`` (contract §6); empty cells where no value exists yet."""
     el, sh = rows["elbow"], rows["shoulder"]
-    cols = [
-        rows["t"].tolist(),
-        *(el[:, j].tolist() for j in range(3)),
-        *(sh[:, j].tolist() for j in range(3)),
-        rows["elbow_angle_deg"].tolist(),
-        rows["heading_offset_deg"].tolist(),
-        rows["heading_converged"].astype(np.int64).tolist(),
-        rows["shoulder_displacement_m"].tolist(),
+    cols: list[_Column] = [
+        rows["t"],
+        *(el[:, j] for j in range(3)),
+        *(sh[:, j] for j in range(3)),
+        rows["elbow_angle_deg"],
+        rows["heading_offset_deg"],
+        rows["heading_converged"].astype(np.int64),
+        rows["shoulder_displacement_m"],
         [STATE_NAMES[int(s)] for s in rows["state"].tolist()],
     ]
     return _lines(_EST_FMT, cols)
@@ -75,7 +202,7 @@ def detail_lines(rows: dict[str, np.ndarray]) -> list[str]:
         ],
         axis=1,
     )
-    return _lines(_DET_FMT, [m[:, j].tolist() for j in range(m.shape[1])])
+    return _lines(_DET_FMT, [m[:, j] for j in range(m.shape[1])])
 
 
 def estimate_payload(rows: dict[str, np.ndarray]) -> dict[str, list[Any]]:
@@ -227,20 +354,27 @@ def decode_stream(
     lines: Iterable[tuple[str | None, Any]], prefix: str = keys.DEFAULT_PREFIX
 ) -> Iterator[tuple[str | None, wire.Message | wire.WireError]]:
     """Decode recording lines; yield ``(device, message or error)`` (device None if unknown)."""
-    for key, payload in lines:
-        if key is None:
-            yield None, wire.WireError("malformed_line", "recording line is not {key, payload}")
-            continue
-        try:
-            msg = wire.decode(key, payload, prefix)
-        except wire.WireError as exc:
-            try:
-                dev: str | None = keys.parse(key, prefix).device
-            except keys.KeyError_:
-                dev = None
-            yield dev, exc
-            continue
-        yield msg.device, msg
+    it = iter(lines)
+    # batches for wire.decode_many: small, so that few decoded objects are alive at once
+    # for the cyclic collector to scan and promote
+    while chunk := list(islice(it, _DECODE_BATCH)):
+        decoded = iter(wire.decode_many([(k, p) for k, p in chunk if k is not None], prefix))
+        for key, _ in chunk:
+            if key is None:
+                yield None, wire.WireError("malformed_line", "recording line is not {key, payload}")
+                continue
+            item = next(decoded)
+            if isinstance(item, wire.WireError):
+                try:
+                    dev: str | None = keys.parse(key, prefix).device
+                except keys.KeyError_:
+                    dev = None
+                yield dev, item
+            else:
+                yield item.device, item
+
+
+_DECODE_BATCH = 64
 
 
 def analyze(
@@ -288,10 +422,9 @@ def analyze(
 
 def write_outputs(run: DeviceRun, report: dict[str, Any], out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    (out / "estimates.csv").write_text(CSV_HEADER + "\n" + "".join(x + "\n" for x in run.est_lines))
-    (out / "details.csv").write_text(
-        DETAILS_HEADER + "\n" + "".join(x + "\n" for x in run.det_lines)
-    )
+    # [*lines, ""]: every line newline-terminated
+    (out / "estimates.csv").write_text("\n".join([CSV_HEADER, *run.est_lines, ""]))
+    (out / "details.csv").write_text("\n".join([DETAILS_HEADER, *run.det_lines, ""]))
     (out / "report.json").write_text(dump_report(report))
 
 

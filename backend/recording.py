@@ -10,6 +10,7 @@ from __future__ import annotations
 import gzip
 import io
 import json
+import zlib
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any
@@ -27,7 +28,7 @@ def _open_text(path: Path, mode: str) -> IO[str]:
     return open(path, mode, encoding="utf-8")
 
 
-class _Line(msgspec.Struct):
+class _Line(msgspec.Struct, gc=False):  # never in a cycle: not worth the collector's time
     key: str
     payload: msgspec.Raw  # left as JSON text for the typed decoder of its kind
 
@@ -41,26 +42,61 @@ def read(path: str | Path) -> Iterator[Line]:
     The payload comes back as its raw JSON bytes for :func:`backend.wire.decode`.
     """
     p = Path(path)
-    with gzip.open(p, "rb") if p.suffix == ".gz" else open(p, "rb") as fh:
-        for line in _lines(fh):
-            if not line.strip():
-                continue
+    for line in _complete_lines(p):
+        if not line or line.isspace():
+            continue
+        try:
+            obj = _LINE.decode(line)
+        except (msgspec.DecodeError, msgspec.ValidationError):
+            # the line as read, its newline included, cut at 200 bytes
+            yield None, (line + b"\n")[:200].decode("utf-8", "replace")
+            continue
+        yield obj.key, obj.payload
+
+
+_CHUNK = 1 << 24  # decompressed bytes per read: large reads, bounded memory
+
+
+def _complete_lines(path: Path) -> Iterator[bytes]:
+    """Complete lines of a file (without their newline), read in large chunks: a line
+    reader costs more than the decompression itself. A file may end mid-write (a killed
+    recorder): a truncated gzip stream or a last line without its newline is where the
+    recording stops, not an error."""
+    gz = path.suffix == ".gz"
+    done = 0  # bytes of the decompressed stream already split into lines
+    tail = b""
+    with gzip.open(path, "rb") if gz else open(path, "rb") as fh:
+        while True:
             try:
-                obj = _LINE.decode(line)
-            except (msgspec.DecodeError, msgspec.ValidationError):
-                yield None, line[:200].decode("utf-8", "replace")
-                continue
-            yield obj.key, obj.payload
+                chunk = fh.read(_CHUNK)
+            except (EOFError, OSError, zlib.error):
+                if not gz:
+                    raise
+                # a truncated (or corrupt) gzip stream: this read returned nothing of what
+                # it had decompressed before the end
+                break
+            if not chunk:
+                return
+            done += len(chunk)
+            lines = (tail + chunk).split(b"\n")
+            tail = lines.pop()  # no newline yet: completed by the next chunk, if any
+            yield from lines
+    # line by line from where the chunks stopped: every line the stream still completes,
+    # then the same end (silent if truncated, else the same error) as a line reader's
+    with gzip.open(path, "rb") as fh:
+        fh.seek(done)
+        for line in _lines(fh):
+            yield tail + line[:-1]
+            tail = b""
 
 
 def _lines(fh: Iterable[bytes]) -> Iterator[bytes]:
-    """Lines of a file that may end mid-write (a killed recorder): a truncated gzip stream
-    or a last line without its newline is where the recording stops, not an error."""
+    """Lines (with their newline) up to where a truncated gzip stream ends; an
+    unterminated last line was cut by the crash and is dropped."""
     try:
         for line in fh:
             if line.endswith(b"\n"):
                 yield line
-            # an unterminated last line was cut by the crash: dropped
     except EOFError:
         return
 

@@ -11,9 +11,13 @@ loss) needs per-stream state and lives in :mod:`backend.quality`.
 
 from __future__ import annotations
 
+import array
 import json
 import math
-from dataclasses import dataclass, field
+import operator
+from collections.abc import Iterable
+from dataclasses import dataclass, field, fields
+from itertools import chain
 from typing import Any, TypeAlias
 
 import msgspec
@@ -122,14 +126,16 @@ def _load(payload: bytes | str | dict[str, Any]) -> dict[str, Any]:
 Vec3 = tuple[float, float, float]
 
 
-class _Imu(msgspec.Struct):
+# gc=False: a decoded payload holds only numbers, never a cycle; untracked, the ~10^4 a
+# recording decodes do not set off the cyclic collector
+class _Imu(msgspec.Struct, gc=False):
     t: list[float]
     gyr: list[Vec3]
     acc: list[Vec3]
     seq: int | None = None
 
 
-class _Robot(msgspec.Struct):
+class _Robot(msgspec.Struct, gc=False):
     t: list[float]
     wrist: list[Vec3]
     proximal: list[Vec3]
@@ -137,7 +143,7 @@ class _Robot(msgspec.Struct):
     seq: int | None = None
 
 
-class _Camera(msgspec.Struct):
+class _Camera(msgspec.Struct, gc=False):
     t: list[float]
     elbow: list[Vec3]
     wrist: list[Vec3]
@@ -185,27 +191,97 @@ def _reason(msg: str) -> str:
     return "bad_type"
 
 
-def _arr(rows: list[Any], name: str, n: int) -> FloatArray:
-    if len(rows) != n:
-        raise WireError("length_mismatch", f"{name!r} has {len(rows)} rows, t has {n}")
-    return np.array(rows, dtype=np.float64).reshape(n, 3)
+_STREAMS = ("imu", "robot", "camera")
+_VEC_NAMES = {
+    "imu": ("gyr", "acc", ""),
+    "robot": ("wrist", "proximal", "elbow"),
+    "camera": ("elbow", "wrist", "shoulder"),
+}
 
 
-def _check(t: list[float], seq: int | None, from_json: bool, *arrays: FloatArray) -> FloatArray:
+def _validate(
+    kind: str, p: Any, from_json: bool
+) -> tuple[list[float], list[Vec3], list[Vec3], list[Vec3] | None]:
+    """Every per-message check on the decoded lists, before any array exists; returns
+    ``t`` and the two required and one optional (N,3) fields.
+
+    Plain Python: for the usual 1..10 samples a message carries, numpy's per-call cost
+    would exceed the checks themselves. The order of the checks fixes which reason a
+    payload with several faults gets."""
+    t: list[float] = p.t
     n = len(t)
+    if kind == "imu":
+        a, b, c = p.gyr, p.acc, None
+    elif kind == "robot":
+        a, b, c = p.wrist, p.proximal, p.elbow
+    else:
+        a, b, c = p.elbow, p.wrist, p.shoulder
+    if len(a) != n or len(b) != n or (c is not None and len(c) != n):
+        for rows, name in zip((a, b, c), _VEC_NAMES[kind], strict=True):
+            if rows is not None and len(rows) != n:
+                raise WireError("length_mismatch", f"{name!r} has {len(rows)} rows, t has {n}")
     if n == 0:
         raise WireError("empty", "no samples")
     if n > MAX_SAMPLES:
         raise WireError("too_large", f"{n} samples > {MAX_SAMPLES}")
-    ta = np.array(t, dtype=np.float64)
     # JSON text cannot carry NaN/inf past the typed decoder; Python objects can
-    if not from_json and not (np.isfinite(ta).all() and all(np.isfinite(a).all() for a in arrays)):
+    if not from_json and not (
+        all(map(math.isfinite, t))
+        and all(math.isfinite(x) for rows in (a, b, c) if rows is not None for r in rows for x in r)
+    ):
         raise WireError("non_finite", "NaN or inf in payload")
-    if n > 1 and not all(a < b for a, b in zip(t, t[1:], strict=False)):
+    if n > 1 and not all(map(operator.lt, t, t[1:])):
         raise WireError("non_increasing_t", "t is not strictly increasing within the message")
+    seq = p.seq
     if seq is not None and not (0 <= seq < 2**63):
         raise WireError("bad_type", "seq must be a non-negative integer")
-    return ta
+    return t, a, b, c
+
+
+# A frozen dataclass's __init__ sets each field through object.__setattr__: about half of
+# what a decoded message costs. decode_many sets the slots directly, all of them.
+_FIELDS: dict[type, tuple[str, ...]] = {
+    ImuMessage: ("device", "segment", "t", "gyr", "acc", "seq"),
+    RobotMessage: ("device", "t", "wrist", "proximal", "elbow", "seq"),
+    CameraMessage: ("device", "t", "elbow", "wrist", "shoulder", "seq"),
+}
+for _cls, _names in _FIELDS.items():
+    if tuple(f.name for f in fields(_cls)) != _names:
+        raise TypeError(f"{_cls.__name__}'s fields changed: update wire._message")
+_SLOTS = {cls: tuple(cls.__dict__[f].__set__ for f in names) for cls, names in _FIELDS.items()}
+
+
+def _message(
+    pk: keys.ParsedKey,
+    seq: int | None,
+    t: FloatArray,
+    a: FloatArray,
+    b: FloatArray,
+    c: FloatArray | None,
+) -> Message:
+    """The message of a validated stream payload (what its dataclass would build)."""
+    m: Message
+    if pk.kind == "imu":
+        m = ImuMessage.__new__(ImuMessage)
+        s = _SLOTS[ImuMessage]
+        s[0](m, pk.device)
+        s[1](m, pk.segment or "upperarm")
+        s[2](m, t)
+        s[3](m, a)
+        s[4](m, b)
+    else:
+        cls: type[RobotMessage | CameraMessage] = (
+            RobotMessage if pk.kind == "robot" else CameraMessage
+        )
+        m = cls.__new__(cls)
+        s = _SLOTS[cls]
+        s[0](m, pk.device)
+        s[1](m, t)
+        s[2](m, a)
+        s[3](m, b)
+        s[4](m, c)
+    s[5](m, seq)
+    return m
 
 
 def decode(
@@ -216,32 +292,78 @@ def decode(
         pk = keys.parse(key, prefix)
     except keys.KeyError_ as exc:
         raise WireError("unknown_key", str(exc)) from None
-    if pk.kind == "imu":
-        p = _structured("imu", payload)
-        n = len(p.t)
-        gyr, acc = _arr(p.gyr, "gyr", n), _arr(p.acc, "acc", n)
-        t = _check(p.t, p.seq, not isinstance(payload, dict), gyr, acc)
-        return ImuMessage(pk.device, pk.segment or "upperarm", t, gyr, acc, p.seq)
-    if pk.kind == "robot":
-        r = _structured("robot", payload)
-        n = len(r.t)
-        wrist, prox = _arr(r.wrist, "wrist", n), _arr(r.proximal, "proximal", n)
-        elbow = _arr(r.elbow, "elbow", n) if r.elbow is not None else None
-        extra = () if elbow is None else (elbow,)
-        t = _check(r.t, r.seq, not isinstance(payload, dict), wrist, prox, *extra)
-        return RobotMessage(pk.device, t, wrist, prox, elbow, r.seq)
-    if pk.kind == "camera":
-        c = _structured("camera", payload)
-        n = len(c.t)
-        el, wr = _arr(c.elbow, "elbow", n), _arr(c.wrist, "wrist", n)
-        sh = _arr(c.shoulder, "shoulder", n) if c.shoulder is not None else None
-        t = _check(
-            c.t, c.seq, not isinstance(payload, dict), el, wr, *(() if sh is None else (sh,))
+    kind = pk.kind
+    if kind in _STREAMS:
+        p = _structured(kind, payload)
+        t, a, b, c = _validate(kind, p, not isinstance(payload, dict))
+        n = len(t)
+        # one array for all (N,3) fields: each field is a view of n rows
+        v = np.array(a + b + (c or []), dtype=np.float64)
+        return _message(
+            pk,
+            p.seq,
+            np.array(t, dtype=np.float64),
+            v[:n],
+            v[n : 2 * n],
+            v[2 * n :] if c is not None else None,
         )
-        return CameraMessage(pk.device, t, el, wr, sh, c.seq)
-    if pk.kind == "event":
+    if kind == "event":
         return _event(pk.device, _load(payload))
     raise WireError("unknown_key", f"{key!r} is a service output, not an input")
+
+
+def decode_many(
+    items: Iterable[tuple[str, Any]], prefix: str = keys.DEFAULT_PREFIX
+) -> list[Message | WireError]:
+    """:func:`decode` of each ``(key, payload)``, the error returned instead of raised.
+
+    Same messages and the same rejections as :func:`decode`, but the arrays of all the
+    batch's stream messages come from two numpy calls, each message's arrays being views
+    of them: per-message array construction dominated an offline analysis.
+    """
+    out: list[Message | WireError | None] = []
+    ts: list[float] = []  # every accepted message's t, concatenated
+    vs: list[Vec3] = []  # and its (N,3) rows, field after field
+    todo: list[tuple[int, keys.ParsedKey, int | None, int, int, int, bool]] = []
+    for key, payload in items:
+        try:
+            pk = keys.parse(key, prefix)
+            kind = pk.kind
+            if kind not in _STREAMS or isinstance(payload, (dict, str)):
+                out.append(decode(key, payload, prefix))
+                continue
+            p = _structured(kind, payload)
+            t, a, b, c = _validate(kind, p, True)
+        except keys.KeyError_ as exc:
+            out.append(WireError("unknown_key", str(exc)))
+            continue
+        except WireError as exc:
+            # returned, not raised: without its traceback, whose frames (this one and its
+            # lists) would otherwise wait for the cyclic collector
+            out.append(exc.with_traceback(None))
+            continue
+        todo.append((len(out), pk, p.seq, len(ts), len(vs), len(t), c is not None))
+        out.append(None)
+        ts += t
+        vs += a
+        vs += b
+        if c is not None:
+            vs += c
+    if todo:
+        # from flat doubles: numpy's conversion of nested sequences costs ~3x more
+        ta = np.frombuffer(array.array("d", ts), dtype=np.float64)
+        va = np.fromiter(chain.from_iterable(vs), np.float64, 3 * len(vs)).reshape(-1, 3)
+        for i, pk, seq, ti, vi, n, has_c in todo:
+            v2 = vi + 2 * n
+            out[i] = _message(
+                pk,
+                seq,
+                ta[ti : ti + n],
+                va[vi : vi + n],
+                va[vi + n : v2],
+                va[v2 : v2 + n] if has_c else None,
+            )
+    return out  # type: ignore[return-value]  # every None was filled in above
 
 
 def _event(device: str, obj: dict[str, Any]) -> EventMessage:
