@@ -1,8 +1,8 @@
 """A session's files: its raw recording and, beside it, what ``rehab analyze`` writes.
 
     data_dir/recordings/<id>.jsonl.gz          every raw message of the device, as received
-    data_dir/recordings/<id>/estimates.csv     written live, row by row
-    data_dir/recordings/<id>/details.csv       written live, row by row
+    data_dir/recordings/<id>/estimates.csv     written live (flushed with the recording)
+    data_dir/recordings/<id>/details.csv       written live (flushed with the recording)
     data_dir/recordings/<id>/report.json       written when the session stops
 
 The directory holds exactly what ``rehab analyze <id>.jsonl.gz --out <id>`` produces, so a
@@ -58,22 +58,31 @@ def _set_aside(path: Path) -> None:
 
 
 class LineSink(list[str]):
-    """Stands in for ``DeviceRun.est_lines``/``det_lines``: writes lines through to a file
-    and only counts them (``len()`` is what the report reads), so a session of hours does
-    not hold its CSV in memory."""
+    """Stands in for ``DeviceRun.est_lines``/``det_lines``: only counts the lines
+    (``len()`` is what the report reads) and writes them through to a file at each
+    :meth:`flush`, so a session of hours does not hold its CSV in memory and a poll does not
+    pay for a file write."""
 
     def __init__(self, fh: IO[str]) -> None:
         super().__init__()
         self._fh = fh
         self._n = 0
+        self._pending: list[str] = []
 
     def extend(self, lines: Iterable[str]) -> None:
-        batch = list(lines)
-        self._n += len(batch)
-        self._fh.write("".join(x + "\n" for x in batch))
+        before = len(self._pending)
+        self._pending.extend(lines)
+        self._n += len(self._pending) - before
 
     def append(self, line: str) -> None:
-        self.extend((line,))
+        self._pending.append(line)
+        self._n += 1
+
+    def flush(self) -> None:
+        if self._pending:
+            self._fh.write("\n".join(self._pending))
+            self._fh.write("\n")
+            self._pending.clear()
 
     def __len__(self) -> int:
         return self._n
@@ -102,8 +111,11 @@ class SessionFiles:
         self.closed = False
 
     def flush(self) -> None:
+        """Everything so far to the OS (the service does it every 0.25 s)."""
         if not self.closed:
             self.recorder.flush()
+            self.estimates.flush()
+            self.details.flush()
             self._est.flush()
             self._det.flush()
 
@@ -111,6 +123,8 @@ class SessionFiles:
         if self.closed:
             return
         self.closed = True
+        self.estimates.flush()
+        self.details.flush()
         self.recorder.close()
         self._est.close()
         self._det.close()

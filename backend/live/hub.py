@@ -2,7 +2,8 @@
 
 Each message is serialised once and handed to every interested client as text. A client
 that cannot keep up loses messages (counted), it never slows the pipelines. Estimate rows
-are concatenated between sends, so a client sees every row even at the 30 Hz cap; state
+are kept as numpy blocks between sends and serialised once per send, so a client sees every
+row even at the 30 Hz cap; state
 changes and cycle verdicts bypass the cap. A state change can therefore arrive up to one
 decimation interval before the rows that led to it.
 """
@@ -18,7 +19,8 @@ from typing import Any
 
 import orjson
 
-from backend.live.feed import Rows, extend_rows
+from backend.live.feed import Block, join
+from backend.live.feed import dumps as dumps_numpy
 
 log = logging.getLogger(__name__)
 
@@ -50,14 +52,19 @@ class Client:
 @dataclass
 class _Pending:
     session_id: int | None = None
-    display: Rows = field(default_factory=dict)
-    overlay: Rows = field(default_factory=dict)
+    display: list[Block] = field(default_factory=list)
+    overlay: list[Block] = field(default_factory=list)
     last_sent: float = -1e9
     timer: asyncio.TimerHandle | None = None
 
 
 def dumps(msg: dict[str, Any]) -> str:
     return orjson.dumps(msg).decode("utf-8")
+
+
+def _estimate_text(device: str, blocks: list[Block]) -> str:
+    rows = join(blocks).columns()
+    return dumps_numpy({"type": "estimate", "device": device, "rows": rows}).decode("utf-8")
 
 
 class Hub:
@@ -113,18 +120,18 @@ class Hub:
                overlay_msg: dict[str, Any]) -> None:
         self._send(device, session_id, msg, overlay_msg)
 
-    def rows(self, device: str, session_id: int | None, display: Rows | None,
-             overlay: Rows | None) -> None:
+    def rows(self, device: str, session_id: int | None, display: Block | None,
+             overlay: Block | None) -> None:
         p = self._pending.get(device)
         if p is None:
             p = self._pending[device] = _Pending(session_id)
         elif p.session_id != session_id:
             self.flush(device)
             p.session_id = session_id
-        if display:
-            extend_rows(p.display, display)
-        if overlay:
-            extend_rows(p.overlay, overlay)
+        if display is not None:
+            p.display.append(display)
+        if overlay is not None:
+            p.overlay.append(overlay)
         wait = p.last_sent + self.min_interval - time.monotonic()
         if wait <= 0:
             self.flush(device)
@@ -140,19 +147,18 @@ class Hub:
             p.timer = None
         if not p.display and not p.overlay:
             return
-        msg = {"type": "estimate", "device": device, "rows": p.display} if p.display else None
-        omsg = {"type": "estimate", "device": device, "rows": p.overlay} if p.overlay else None
-        p.display, p.overlay = {}, {}
+        display, overlay = p.display, p.overlay
+        p.display, p.overlay = [], []
         p.last_sent = time.monotonic()
         text = otext = None
         for c in list(self.clients):
             if not c.wants(device, p.session_id):
                 continue
-            if c.overlay is None and msg is not None:
-                text = text or dumps(msg)
+            if c.overlay is None and display:
+                text = text or _estimate_text(device, display)
                 c.send(text)
-            elif c.overlay is not None and omsg is not None:
-                otext = otext or dumps(omsg)
+            elif c.overlay is not None and overlay:
+                otext = otext or _estimate_text(device, overlay)
                 c.send(otext)
 
     def end_session(self, session_id: int) -> None:

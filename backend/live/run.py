@@ -77,7 +77,10 @@ class LiveRun:
         self.nominal: tuple[float, float, float] | None = None
         # where the next nominal shoulder comes from (for the sessions table)
         self.nominal_source = "params" if self.params.nominal_shoulder_m is not None else "auto"
-        self.shoulders: deque[np.ndarray] = deque(maxlen=SHOULDER_MEMORY)
+        # the newest converged shoulder rows, one block per poll (a row each was a numpy view
+        # per row): at least SHOULDER_MEMORY rows once there are that many
+        self._shoulders: deque[np.ndarray] = deque()
+        self._shoulder_rows = 0
         self.failures = 0
         self.converged = False  # of the newest row (a change is pushed to dashboards)
         self.pending: list[dict[str, Any]] = []  # therapist events waiting for data
@@ -167,10 +170,18 @@ class LiveRun:
             self.run.take(out)  # rows to the files, cycles and statistics to the report
             compact_stats(self.run)
         if out.n:
-            sh = out.rows["shoulder"]
-            good = np.isfinite(sh).all(axis=1) & out.rows["heading_converged"].astype(bool)
-            self.shoulders.extend(sh[good][-SHOULDER_MEMORY:])
+            self._keep_shoulders(out.rows["shoulder"], out.rows["heading_converged"])
         return out
+
+    def _keep_shoulders(self, sh: np.ndarray, converged: np.ndarray) -> None:
+        block = sh[np.isfinite(sh).all(axis=1) & converged.astype(bool)]
+        if not len(block):
+            return
+        kept = self._shoulders
+        kept.append(block)
+        self._shoulder_rows += len(block)
+        while self._shoulder_rows - len(kept[0]) >= SHOULDER_MEMORY:
+            self._shoulder_rows -= len(kept.popleft())
 
     def fail(self, where: str) -> None:
         """A pipeline exception: count, log (not a flood of it), start the pipeline afresh.
@@ -184,9 +195,10 @@ class LiveRun:
         self.fed_since_poll = False
 
     def shoulder_estimate(self) -> list[float] | None:
-        if not self.shoulders:
+        if not self._shoulders:
             return None
-        return [float(x) for x in np.mean(np.array(self.shoulders), axis=0)]
+        recent = np.concatenate(self._shoulders)[-SHOULDER_MEMORY:]
+        return [float(x) for x in np.mean(recent, axis=0)]
 
     def nominal_change(self, out: Output) -> tuple[float, float, float] | None:
         """The nominal shoulder of the newest row, if it differs from the last one seen."""

@@ -1,17 +1,16 @@
-"""One task per device: its bounded queue, its current run, its outputs.
+"""One worker per device: its bounded queue, its current run, its outputs.
 
 Isolation: a device's messages wait in its own queue (full: dropped and counted, the
-ingest never waits); its task handles at most ``BATCH`` messages per turn before yielding,
-so a flooding device cannot starve the others; an exception in its pipeline resets that
-pipeline only. Session start/stop and therapist events travel through the same queue as
-the data, so they take effect at a defined point of the device's message order — the
-same point in the recording.
+ingest never waits); a turn handles at most ``BATCH`` of them, and the :class:`Scheduler`
+gives every device with work a turn before any gets a second, so a flooding device cannot
+starve the others; an exception in its pipeline resets that pipeline only. Session
+start/stop and therapist events travel through the same queue as the data, so they take
+effect at a defined point of the device's message order — the same point in the recording.
 """
 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import math
 from collections import deque
@@ -22,7 +21,6 @@ from typing import Any, Protocol
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from backend import wire
-from backend.analysis import estimate_payload
 from backend.db.sessions import record_cycle, store_nominal_shoulder
 from backend.deps import LiveUnavailable
 from backend.live import feed
@@ -38,7 +36,7 @@ from estimators.verdicts import CycleVerdict
 
 log = logging.getLogger(__name__)
 
-BATCH = 64  # messages per turn before the task yields to the other devices
+BATCH = 64  # messages per turn before the other devices get theirs
 
 
 class RowsView(Protocol):
@@ -82,6 +80,10 @@ def session_summary(report: dict[str, Any]) -> dict[str, Any]:
         **report["summary"],
         "heading_converged_t": report["heading"]["converged_t"],
         "shoulder_displacement_m": report["shoulder_displacement_m"],
+        # range of motion, for the patient's history without reading every report
+        "elbow_flexion_deg": report.get("elbow_flexion_deg"),
+        "upper_arm_elevation_deg": report.get("upper_arm_elevation_deg"),
+        "upper_arm_azimuth_deg": report.get("upper_arm_azimuth_deg"),
         "rejected_messages": sum(report["data_quality"]["rejected"].values()),
     }
 
@@ -90,12 +92,43 @@ def _finite(x: float) -> float | None:
     return x if math.isfinite(x) else None
 
 
+class Scheduler:
+    """Gives the device workers their turns on the event loop.
+
+    A worker with work is marked ready; one loop callback gives every ready worker one turn
+    (at most ``BATCH`` messages, then one poll), in the order they became ready, and a worker
+    with more work waits for the next round, after the loop's other callbacks. One callback
+    for all devices rather than a task each: no task switch and event per message, and a
+    burst of a device's messages is fed whole and polled once.
+    """
+
+    def __init__(self) -> None:
+        self._ready: dict[DeviceWorker, None] = {}  # an ordered set
+        self._handle: asyncio.Handle | None = None
+
+    def ready(self, worker: DeviceWorker) -> None:
+        self._ready[worker] = None
+        if self._handle is None:
+            self._handle = asyncio.get_running_loop().call_soon(self._scheduled)
+
+    def _scheduled(self) -> None:
+        self._handle = None
+        self.run()
+
+    def run(self) -> None:
+        """One round now (ingest calls it right after routing a batch)."""
+        ready, self._ready = self._ready, {}
+        for worker in ready:
+            worker.turn()
+
+
 class DeviceWorker:
     def __init__(
         self,
         name: str,
         stats: DeviceStats,
         *,
+        scheduler: Scheduler,
         prefix: str,
         zio: ZenohIO | None,
         hub: Hub,
@@ -107,6 +140,7 @@ class DeviceWorker:
     ) -> None:
         self.name = name
         self.stats = stats
+        self._scheduler = scheduler
         self.prefix = prefix
         self._zio = zio
         self._hub = hub
@@ -118,22 +152,15 @@ class DeviceWorker:
         self.live = LiveRun(name, prefix, stats)
         self._queue: deque[RawMessage | Command] = deque()
         self._bytes = 0
-        self._wake = asyncio.Event()
-        self._task: asyncio.Task[None] | None = None
         self.poll_due = False
         self.internal_errors = 0
+        self.closed = False
 
     # ------------------------------------------------------------------ producer side
 
-    def start(self) -> None:
-        self._task = asyncio.create_task(self._loop(), name=f"device:{self.name}")
-
-    async def close(self) -> None:
-        if self._task is not None:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._task
-            self._task = None
+    def close(self) -> None:
+        """No more turns (the service is stopping; sessions were finished before)."""
+        self.closed = True
 
     def offer(self, msg: RawMessage) -> None:
         st = self.stats
@@ -148,43 +175,42 @@ class DeviceWorker:
             return
         self._queue.append(msg)
         self._bytes += msg.size
-        self._wake.set()
+        self._scheduler.ready(self)
 
     def command(self, cmd: Command) -> asyncio.Future[Any]:
         """Commands bypass the bound (they come from the REST layer, not from devices)."""
         self._queue.append(cmd)
-        self._wake.set()
+        self._scheduler.ready(self)
         return cmd.future
 
     def request_poll(self) -> None:
         """Timer: poll what was fed but produced no row (e.g. a device sending IMU only)."""
         if self.live.fed_since_poll:
             self.poll_due = True
-            self._wake.set()
+            self._scheduler.ready(self)
 
     @property
     def queued(self) -> int:
         return len(self._queue)
 
-    # ------------------------------------------------------------------ the task
+    # ------------------------------------------------------------------ a turn
 
-    async def _loop(self) -> None:
-        while True:
-            await self._wake.wait()
-            self._wake.clear()
-            try:
-                while self._queue:
-                    self._step()
-                    await asyncio.sleep(0)
-                if self.poll_due:
-                    self.poll_due = False
-                    if self.live.fed_since_poll:
-                        self._emit(self.live.poll())
-            except Exception:  # a bug must not end the device's task
-                self.internal_errors += 1
-                self.stats.reject("internal_error")
-                if self.internal_errors <= 3:
-                    log.exception("device %s: worker error", self.name)
+    def turn(self) -> None:
+        if self.closed:
+            return
+        try:
+            self._step()
+            if self.poll_due:
+                self.poll_due = False
+                if self.live.fed_since_poll:
+                    self._emit(self.live.poll())
+        except Exception:  # a bug must not stop the device
+            self.internal_errors += 1
+            self.stats.reject("internal_error")
+            if self.internal_errors <= 3:
+                log.exception("device %s: worker error", self.name)
+        if self._queue:
+            self._scheduler.ready(self)
 
     def _step(self) -> None:
         n = 0
@@ -219,26 +245,24 @@ class DeviceWorker:
         sid = live.session_id
         pubs = self._zio.publishers(dev) if self._zio is not None else None
         if out.n:
-            contract = estimate_payload(out.rows)
-            if pubs is not None:
-                try:
-                    pubs.estimate.put(wire.dumps(contract))
-                except Exception:
-                    log.warning("device %s: estimate not published", dev, exc_info=True)
             therapist, overlay = self._hub.interest(dev, sid)
             view = self._view()
             if view is not None and view.selected != dev:
                 view = None  # only the device on screen: ~85 µs a row is too much for 50
-            display = (
-                feed.display_rows(out.rows, contract) if therapist or view is not None else None
-            )
+            # the dashboard's columns only when someone looks (a second block cost as much)
+            block = feed.estimate_block(out.rows, display=therapist or view is not None)
+            if pubs is not None:
+                try:
+                    pubs.estimate.put(feed.dumps(block.columns(len(feed.CONTRACT_FLOATS))))
+                except Exception:
+                    log.warning("device %s: estimate not published", dev, exc_info=True)
             if therapist or overlay:
                 self._hub.rows(
-                    dev, sid, display if therapist else None,
-                    feed.overlay_rows(out.rows, contract) if overlay else None,
+                    dev, sid, block if therapist else None,
+                    feed.overlay_block(out.rows) if overlay else None,
                 )
-            if view is not None and display is not None:
-                view.update(dev, display)
+            if view is not None:
+                view.update(dev, feed.as_rows(block))
             converged = bool(out.rows["heading_converged"][-1])
             if converged != live.converged:
                 live.converged = converged

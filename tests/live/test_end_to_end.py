@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import gzip
 import json
+import sqlite3
 import threading
 from pathlib import Path
 from typing import Any
@@ -97,6 +98,49 @@ def test_live_session_equals_offline_analysis(service: Service, tmp_path: Path) 
     actions = {(a["action"], a["object"]) for a in audit}
     for action in ("export.report", "export.estimates", "export.recording"):
         assert (action, f"session:{sid}") in actions
+    history_without_reports(service, stopped, rep)
+
+
+RANGES = ("elbow_flexion_deg", "upper_arm_elevation_deg", "upper_arm_azimuth_deg")
+
+
+def history_without_reports(service: Service, stopped: dict[str, Any],
+                            rep: dict[str, Any]) -> None:
+    """A patient's history reads the sessions list: its summaries carry the range of motion
+    (from the live run, or from the stored report for sessions stored before), and reading
+    it is no export."""
+    sid = stopped["id"]
+    for key in RANGES:
+        assert stopped["summary"][key] == rep[key] and rep[key]["range"] > 0
+    assert stopped["summary"]["shoulder_displacement_m"] == rep["shoulder_displacement_m"]
+    assert stopped["summary"]["compensatory_share"] == rep["summary"]["compensatory_share"]
+
+    def history() -> dict[str, Any]:
+        listed = service.api.get("/api/sessions", params={"patient_id": stopped["patient_id"]})
+        assert listed.status_code == 200, listed.text
+        (one,) = listed.json()
+        summary: dict[str, Any] = one["summary"]
+        return summary
+
+    def audited() -> list[dict[str, Any]]:
+        entries: list[dict[str, Any]] = service.api.get(
+            "/api/audit", params={"object": f"session:{sid}"}).json()
+        return entries
+
+    audit_before = audited()
+    assert history() == stopped["summary"]
+    # a summary stored before it held the range of motion: completed from report.json, once
+    old = {k: v for k, v in stopped["summary"].items() if k not in RANGES}
+    with sqlite3.connect(service.data_dir / "rehab.db", timeout=10) as db:
+        db.execute("UPDATE sessions SET summary = ? WHERE id = ?", (json.dumps(old), sid))
+    db.close()
+    assert history() == stopped["summary"]
+    with sqlite3.connect(service.data_dir / "rehab.db", timeout=10) as db:
+        (kept,) = db.execute("SELECT summary FROM sessions WHERE id = ?", (sid,)).fetchone()
+    db.close()
+    assert json.loads(kept) == stopped["summary"]
+    assert service.api.get(f"/api/sessions/{sid}").json()["summary"] == stopped["summary"]
+    assert audited() == audit_before  # reading the history is no export
 
 
 @pytest.mark.slow

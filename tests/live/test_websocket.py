@@ -76,8 +76,12 @@ def test_live_and_overlay_feeds(service: Service) -> None:
     with service.publisher() as pub:
         pub.declare(outgoing)
         assert pub.wait_for_subscribers(10.0)
-        session = service.start(main)
+        # the adaptive tolerated duration (null) and a tolerance of the session's own
+        session = service.start(main, tolerance_m=0.12, warning_after_s=None)
         sid = session["id"]
+        assert session["params"]["warning_after_s"] is None
+        assert session["params"]["tolerance_m"] == 0.12
+        assert service.manager.workers[main].live.params.warning_after_s is None
         wait_for(lambda: service.device(other), what="second device")
         token = service.api.post(f"/api/sessions/{sid}/overlay-link").json()["token"]
 
@@ -120,6 +124,7 @@ def test_live_and_overlay_feeds(service: Service) -> None:
         assert key in status, key
     assert status["session_id"] == sid and status["patient"] == f"p-{main}"
     assert status["online"] is True and status["heading_converged"] is True
+    assert status["tolerance_m"] == 0.12
     assert set(status["rates_hz"]) == {"imu", "robot"}
 
     # estimates: every column, every row exactly once, at most 30 messages per second
@@ -147,7 +152,9 @@ def test_live_and_overlay_feeds(service: Service) -> None:
     assert {m["device"] for _, m in overlay.messages} == {main}
     for _, m in overlay.messages:
         if m["type"] == "status":
-            assert set(m) == {"type", "device", "heading_converged", "convergence_progress"}
+            assert set(m) == {"type", "device", "heading_converged", "convergence_progress",
+                              "online", "tolerance_m"}
+            assert m["tolerance_m"] == 0.12  # the overlay draws its circle from it
         elif m["type"] == "estimate":
             assert set(m["rows"]) == set(OVERLAY_COLUMNS)
         else:
