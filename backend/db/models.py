@@ -68,7 +68,8 @@ class Patient(Base):
     tolerance_m: Mapped[float] = mapped_column(Float)
     max_outside_fraction: Mapped[float] = mapped_column(Float)
     displacement_norm: Mapped[str] = mapped_column(String(16))
-    warning_after_s: Mapped[float] = mapped_column(Float)
+    # None: adaptive, max_outside_fraction × the last cycle's duration (estimators' default)
+    warning_after_s: Mapped[float | None] = mapped_column(Float)
     notes: Mapped[str] = mapped_column(Text, default="")
     created_by_id: Mapped[int | None] = mapped_column(
         ForeignKey("therapists.id", ondelete="SET NULL")

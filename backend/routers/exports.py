@@ -23,6 +23,7 @@ from backend.db.sessions import get_session
 from backend.deps import DB, State
 from backend.live import files
 from backend.live.manager import LiveManager
+from backend.schemas.sessions import Range, Spread
 
 router = APIRouter(prefix="/sessions/{session_id}", tags=["exports"])
 
@@ -59,22 +60,6 @@ class ReportHeading(_Open):
     method: str | None = None
     first_motion_t: float | None = None
     converged_t: float | None = None
-
-
-class Spread(_Open):
-    median: float | None = None
-    p95: float | None = None
-    max: float | None = None
-
-
-class Range(_Open):
-    """Over the rows with a converged heading; p5..p95 is the robust range."""
-
-    min: float | None = None
-    max: float | None = None
-    p5: float | None = None
-    p95: float | None = None
-    range: float | None = None
 
 
 class Durations(_Open):

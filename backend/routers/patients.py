@@ -16,6 +16,8 @@ from backend.schemas.patients import PatientCreate, PatientOut, PatientUpdate
 
 router = APIRouter(prefix="/patients", tags=["patients"])
 
+NULLABLE = frozenset({"warning_after_s"})  # null: the adaptive tolerated duration
+
 
 def patient_out(patient: Patient) -> PatientOut:
     return PatientOut.model_validate(
@@ -75,8 +77,8 @@ async def update_patient(
 ) -> PatientOut:
     patient = await get_patient(db, patient_id)
     changes = body.model_dump(exclude_unset=True)
-    if any(v is None for v in changes.values()):
-        raise HTTPException(422, "fields cannot be set to null")
+    if any(v is None for k, v in changes.items() if k not in NULLABLE):
+        raise HTTPException(422, "fields cannot be set to null (except warning_after_s)")
     for name, value in changes.items():
         setattr(patient, name, value)
     await _flush_unique_code(db)

@@ -26,13 +26,15 @@ from backend.db.sessions import (
     store_nominal_shoulder,
 )
 from backend.deps import DB, LiveUnavailable, SessionInfo, State
-from backend.schemas.common import Params
+from backend.schemas.common import Params, overrides
 from backend.schemas.sessions import (
     NominalShoulderIn,
     OverlayLinkOut,
     SessionCreate,
     SessionOut,
+    SessionSummary,
 )
+from backend.summaries import complete_summaries
 
 router = APIRouter(prefix="/sessions", tags=["sessions"])
 
@@ -54,7 +56,7 @@ def session_out(session: Session) -> SessionOut:
         params=session.params,
         recording_path=session.recording_path,
         nominal_shoulder=session.nominal_shoulder,  # type: ignore[arg-type]  # validated
-        summary=session.summary,
+        summary=SessionSummary.model_validate(session.summary) if session.summary else None,
     )
 
 
@@ -93,8 +95,7 @@ async def create_session(
     device = await get_device(db, body.device)
     if device is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, "device has never sent data")
-    overrides = body.params.model_dump(exclude_none=True) if body.params else {}
-    params = Params.model_validate({**patient.params(), **overrides}).model_dump()
+    params = Params.model_validate({**patient.params(), **overrides(body.params)}).model_dump()
     try:
         session = await start_session(
             db, patient=patient, device=device, therapist=therapist, params=params
@@ -102,7 +103,10 @@ async def create_session(
     except Conflict as exc:
         raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
     session = await get_session(db, session.id)
-    recording = await state.live.session_started(session_info(session))
+    try:
+        recording = await state.live.session_started(session_info(session))
+    except LiveUnavailable as exc:
+        raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
     if recording is not None:
         session.recording_path = recording
     audit(
@@ -119,6 +123,7 @@ async def create_session(
 @router.get("")
 async def list_sessions(
     db: DB,
+    state: State,
     patient_id: int | None = None,
     device: Annotated[str | None, Query(max_length=64)] = None,
     session_status: Annotated[
@@ -127,7 +132,9 @@ async def list_sessions(
     limit: Annotated[int, Query(ge=1, le=1000)] = 200,
     offset: Annotated[int, Query(ge=0)] = 0,
 ) -> list[SessionOut]:
-    """Newest first; filter by patient, device and status."""
+    """Newest first; filter by patient, device and status. Each finished session carries
+    its summary (cycles, compensatory share, shoulder displacement, range of motion): a
+    patient's history needs no report."""
     stmt = (
         select(Session)
         .options(
@@ -145,12 +152,22 @@ async def list_sessions(
         stmt = stmt.join(Session.device).where(Device.name == device)
     if session_status is not None:
         stmt = stmt.where(Session.status == session_status)
-    return [session_out(s) for s in await db.scalars(stmt)]
+    sessions = list(await db.scalars(stmt))
+    await _complete(db, state, sessions)
+    return [session_out(s) for s in sessions]
 
 
 @router.get("/{session_id}", responses=_404)
-async def read_session(session_id: int, db: DB) -> SessionOut:
-    return session_out(await _load(db, session_id))
+async def read_session(session_id: int, db: DB, state: State) -> SessionOut:
+    session = await _load(db, session_id)
+    await _complete(db, state, [session])
+    return session_out(session)
+
+
+async def _complete(db: DB, state: State, sessions: list[Session]) -> None:
+    """Summaries stored before they held the range of motion: completed once, kept."""
+    if await complete_summaries(sessions, state.settings.data_dir):
+        await db.commit()
 
 
 @router.post("/{session_id}/stop", responses={**_404, **_409})
@@ -201,7 +218,10 @@ async def reset_nominal_shoulder(
     """Forget the nominal shoulder; the pipeline sets it again once the heading converged."""
     session = await _load(db, session_id)
     _require_active(session)
-    await state.live.set_nominal_shoulder(session_info(session), None, False)
+    try:
+        await state.live.set_nominal_shoulder(session_info(session), None, False)
+    except LiveUnavailable as exc:
+        raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
     await store_nominal_shoulder(db, session.id, None, "therapist", therapist.username)
     audit(db, therapist, "session.nominal_shoulder_reset", f"session:{session.id}")
     await db.commit()

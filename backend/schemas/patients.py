@@ -5,12 +5,11 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from backend.schemas.common import Code, Fraction, Length, Norm, Side, Strict
+from backend.schemas.common import Code, Fraction, Length, Norm, Side, Strict, WarnAfter
 
 _NOTES = Field(
     default="", max_length=10_000, description="Clinical notes. No names or other identifiers."
 )
-_WARN = Field(default=1.0, ge=0, le=600, allow_inf_nan=False, description="seconds")
 
 
 class PatientCreate(Strict):
@@ -22,12 +21,13 @@ class PatientCreate(Strict):
     tolerance_m: Length = 0.10
     max_outside_fraction: Fraction = 0.20
     displacement_norm: Norm = "horizontal"
-    warning_after_s: float = _WARN
+    warning_after_s: WarnAfter = 1.0
     notes: str = _NOTES
 
 
 class PatientUpdate(Strict):
-    """Only the fields sent are changed."""
+    """Only the fields sent are changed; none can be set to null except
+    ``warning_after_s`` (null: adaptive)."""
 
     code: Code | None = None
     affected_side: Side | None = None
@@ -37,7 +37,7 @@ class PatientUpdate(Strict):
     tolerance_m: Length | None = None
     max_outside_fraction: Fraction | None = None
     displacement_norm: Norm | None = None
-    warning_after_s: float | None = Field(default=None, ge=0, le=600, allow_inf_nan=False)
+    warning_after_s: WarnAfter = None
     notes: str | None = Field(default=None, max_length=10_000)
 
 
@@ -53,7 +53,7 @@ class PatientOut(BaseModel):
     tolerance_m: float
     max_outside_fraction: float
     displacement_norm: Norm
-    warning_after_s: float
+    warning_after_s: float | None = Field(description="seconds; null: adaptive")
     notes: str
     created_by_id: int | None
     created_at: datetime

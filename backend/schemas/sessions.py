@@ -3,7 +3,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Any, Literal
 
-from pydantic import BaseModel, model_validator
+from pydantic import BaseModel, ConfigDict, model_validator
 
 from backend.schemas.common import DeviceName, ParamsOverride, Point3, Strict
 
@@ -34,6 +34,44 @@ class NominalShoulderIn(Strict):
         return self
 
 
+class Open(BaseModel):
+    model_config = ConfigDict(extra="allow")  # reports may grow; clients ignore the rest
+
+
+class Spread(Open):
+    median: float | None = None
+    p95: float | None = None
+    max: float | None = None
+
+
+class Range(Open):
+    """Over the rows with a converged heading; p5..p95 is the robust range."""
+
+    min: float | None = None
+    max: float | None = None
+    p5: float | None = None
+    p95: float | None = None
+    range: float | None = None
+
+
+class SessionSummary(Open):
+    """What the sessions table keeps of a finished session's report: enough for a patient's
+    history and trends without reading (and auditing as an export) every report. Sessions
+    stored before a key existed get it from their stored report when first listed."""
+
+    rows: int | None = None
+    cycles: int | None = None
+    compensatory_cycles: int | None = None
+    compensatory_share: float | None = None
+    time_outside_share: float | None = None
+    heading_converged_t: float | None = None
+    shoulder_displacement_m: Spread | None = None
+    elbow_flexion_deg: Range | None = None
+    upper_arm_elevation_deg: Range | None = None
+    upper_arm_azimuth_deg: Range | None = None
+    rejected_messages: int | None = None
+
+
 class SessionOut(BaseModel):
     id: int
     patient_id: int
@@ -46,7 +84,7 @@ class SessionOut(BaseModel):
     params: dict[str, Any]
     recording_path: str | None
     nominal_shoulder: NominalShoulder | None
-    summary: dict[str, Any] | None
+    summary: SessionSummary | None
 
 
 class OverlayLinkOut(BaseModel):

@@ -106,6 +106,16 @@ async def test_patient_crud_round_trip(
     assert r.json()["updated_at"] >= patient["updated_at"]
     r = await client.patch(f"/api/patients/{pid}", json={"code": None}, headers=admin)
     assert r.status_code == 422
+    # The tolerated duration may be adaptive (null: max_outside_fraction × last cycle).
+    r = await client.patch(f"/api/patients/{pid}", json={"warning_after_s": None}, headers=admin)
+    assert r.status_code == 200, r.text
+    assert r.json()["warning_after_s"] is None and r.json()["params"]["warning_after_s"] is None
+    got = (await client.get(f"/api/patients/{pid}", headers=admin)).json()
+    assert got["warning_after_s"] is None
+    r = await client.patch(f"/api/patients/{pid}", json={"warning_after_s": 2.5}, headers=admin)
+    assert r.json()["params"]["warning_after_s"] == 2.5
+    r = await client.patch(f"/api/patients/{pid}", json={"warning_after_s": -1}, headers=admin)
+    assert r.status_code == 422
 
     await client.post("/api/patients", json={"code": "Q-9", "affected_side": "left"}, headers=admin)
     codes = [p["code"] for p in (await client.get("/api/patients", headers=admin)).json()]
@@ -193,6 +203,7 @@ async def test_session_lifecycle(
     assert session["params"]["max_outside_fraction"] == 0.3
     assert session["nominal_shoulder"]["point"] == [0.1, 0.2, 0.3]
     assert session["nominal_shoulder"]["source"] == "params"
+    assert session["params"]["warning_after_s"] == 1.0  # the patient's (not overridden)
 
     again = await client.post(
         "/api/sessions", json={"patient_id": pid, "device": "rig-1"}, headers=admin
@@ -252,11 +263,17 @@ async def test_session_lifecycle(
     )
     assert r.status_code == 409
 
-    # A new session on the freed device; lists per patient and by status.
+    # A new session on the freed device, with the adaptive tolerated duration (an explicit
+    # null; omitted keys and other nulls keep the patient's); lists per patient and status.
     r = await client.post(
-        "/api/sessions", json={"patient_id": pid, "device": "rig-1"}, headers=admin
+        "/api/sessions",
+        json={"patient_id": pid, "device": "rig-1",
+              "params": {"warning_after_s": None, "tolerance_m": None}},
+        headers=admin,
     )
     assert r.status_code == 201
+    assert r.json()["params"]["warning_after_s"] is None
+    assert r.json()["params"]["tolerance_m"] == 0.12
     listed = (await client.get("/api/sessions", params={"patient_id": pid}, headers=admin)).json()
     assert [s["id"] for s in listed] == [r.json()["id"], sid]
     active = await client.get("/api/sessions", params={"status": "active"}, headers=admin)
@@ -309,6 +326,7 @@ class RecordingLive:
 
     def __init__(self) -> None:
         self.calls: list[tuple[str, Any]] = []
+        self.refuse_reset = False
 
     async def session_started(self, session: SessionInfo) -> str | None:
         self.calls.append(("started", session))
@@ -324,7 +342,7 @@ class RecordingLive:
         self.calls.append(("nominal", (point, from_estimate)))
         if from_estimate:
             return (0.4, 0.5, 0.6)
-        if point is None:
+        if point is None and not self.refuse_reset:
             return None
         raise LiveUnavailable("refused")
 
@@ -359,6 +377,16 @@ async def test_live_hooks(
         "point"
     ] == [0.4, 0.5, 0.6]
 
+    live.refuse_reset = True  # e.g. the device no longer runs the session
+    r = await client.delete(f"/api/sessions/{sid}/nominal-shoulder", headers=admin)
+    assert r.status_code == 409 and r.json()["detail"] == "refused"
+    assert (await client.get(f"/api/sessions/{sid}", headers=admin)).json()["nominal_shoulder"][
+        "point"
+    ] == [0.4, 0.5, 0.6]  # nothing stored
+    log = await audit_log(state)
+    assert ("admin", "session.nominal_shoulder_reset", f"session:{sid}") not in log
+
     r = await client.post(f"/api/sessions/{sid}/stop", headers=admin)
-    assert r.json()["summary"] == {"cycles": 0, "compensatory": 0}
+    summary = r.json()["summary"]
+    assert summary["cycles"] == 0 and summary["compensatory"] == 0
     assert ("stopped", sid) in live.calls

@@ -6,6 +6,8 @@ export; then four devices on one screen at ≥ 20 updates/s."""
 
 from __future__ import annotations
 
+import gzip
+import json
 import re
 import time
 from collections.abc import Iterator
@@ -17,7 +19,7 @@ import pytest
 from tests.ui.conftest import ConsoleLog, Service, SimDevice, shot, shot_path
 
 pytest.importorskip("playwright.sync_api", reason="playwright not installed (dev extra)")
-from playwright.sync_api import Browser, BrowserContext, Page, expect
+from playwright.sync_api import Browser, BrowserContext, Page, Request, expect
 
 DEVICE = "ui01"
 PATIENT = "UI-001"
@@ -240,15 +242,63 @@ def test_report_and_export(page: Page, console: ConsoleLog) -> None:
     with page.expect_download() as dl:
         page.locator("[data-export=json]").click()
     assert '"cycles"' in Path(dl.value.path()).read_text(encoding="utf-8")
+    with page.expect_download() as dl:
+        page.locator("[data-export=recording]").click()
+    first = gzip.decompress(Path(dl.value.path()).read_bytes()).splitlines()[0]
+    assert json.loads(first)["key"].startswith(f"rehab/{DEVICE}/"), first[:100]
     no_console_errors(console)
 
 
-def test_patient_history(page: Page, console: ConsoleLog, shared: dict[str, Any]) -> None:
+def test_patient_history(
+    page: Page, service: Service, console: ConsoleLog, shared: dict[str, Any]
+) -> None:
+    def exports() -> list[dict[str, Any]]:
+        api = service.api()
+        try:
+            audit: list[dict[str, Any]] = api.get("/api/audit", params={"limit": 1000}).json()
+        finally:
+            api.close()
+        return [a for a in audit if a["action"].startswith("export.")]
+
+    # The history reads the sessions list only: no report is fetched, nothing is audited.
+    before = exports()
+    reports: list[str] = []
+
+    def on_request(r: Request) -> None:
+        if "/report" in r.url:
+            reports.append(r.url)
+
+    page.on("request", on_request)
     page.goto(shared["patient_url"])
     expect(page.get_by_role("heading", name="Trends across sessions")).to_be_visible()
-    expect(page.locator("[data-plot=trend-compensatory] canvas")).to_be_visible(timeout=15_000)
+    for plot in ("trend-compensatory", "trend-elbow", "trend-shoulder"):
+        expect(page.locator(f"[data-plot={plot}] canvas")).to_be_visible(timeout=15_000)
     expect(page.get_by_role("link", name="Report")).to_be_visible()
+    sessions = page.get_by_role("table", name=re.compile(f"Sessions of patient {PATIENT}"))
+    row = sessions.locator("tbody tr").first
+    headers = [h.strip() for h in sessions.locator("thead th").all_inner_texts()]
+    cell = {h: row.locator("td").nth(i) for i, h in enumerate(headers) if h}
+    for name in ("Elbow range", "Elevation range", "Azimuth range"):
+        expect(cell[name]).to_have_text(re.compile(r"^\d+°$"))
+    expect(cell["Compensatory"]).to_have_text(re.compile(r"^[1-9]\d* %$"))
+    expect(cell["Shoulder displacement (median / p95)"]).to_have_text(
+        re.compile(r"^\d+\.\d cm / \d+\.\d cm$")
+    )
+    expect(page.get_by_label("Last session")).to_contain_text(re.compile(r"Elbow range.*\d+°"))
     shot(page, "patient-history", full_page=True)
+    page.remove_listener("request", on_request)
+    assert not reports, reports
+    assert exports() == before
+
+    # The tolerated time outside can be adaptive (a share of the last cycle), by keyboard.
+    page.get_by_role("button", name="Edit").focus()
+    page.keyboard.press("Enter")
+    page.get_by_label(re.compile("^Adaptive")).focus()
+    page.keyboard.press("Space")
+    expect(page.get_by_label("Warning after (s)")).to_be_disabled()
+    page.get_by_role("button", name="Save changes").focus()
+    page.keyboard.press("Enter")
+    expect(page.locator(".page__head")).to_contain_text("20 % of the last cycle (adaptive)")
     no_console_errors(console)
 
 

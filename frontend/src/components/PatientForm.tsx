@@ -68,6 +68,9 @@ export function PatientForm({ patient, onSaved, onCancel }: { patient?: Patient;
   const [error, setError] = useState<string | null>(null);
   const [busy, setBusy] = useState(false);
   const set = <K extends keyof PatientFields>(k: K, v: PatientFields[K]) => setF((x) => ({ ...x, [k]: v }));
+  const adaptive = f.warning_after_s === null;
+  // The fixed duration to come back to when "adaptive" is unticked.
+  const [lastFixed, setLastFixed] = useState<number>(f.warning_after_s ?? 1);
 
   const submit = async (ev: Event) => {
     ev.preventDefault();
@@ -114,22 +117,40 @@ export function PatientForm({ patient, onSaved, onCancel }: { patient?: Patient;
           </div>
         </fieldset>
         <CmField label="Tolerance" name="tolerance" value={f.tolerance_m} min={1} max={50} onChange={(v) => set("tolerance_m", v)} hint="Shoulder movement allowed (paper: 10 cm)" />
-        <label class="field">
-          <span>
+        <div class="field">
+          <label for="pf-warning">
             Warning after <span class="muted">(s)</span>
-          </span>
+          </label>
           <input
+            id="pf-warning"
             name="warning_after_s"
             type="number"
             step="0.1"
             min={0}
             max={600}
-            required
-            value={f.warning_after_s}
-            onInput={(e) => set("warning_after_s", Number(e.currentTarget.value))}
+            required={adaptive === false}
+            disabled={adaptive}
+            value={adaptive ? "" : (f.warning_after_s ?? lastFixed)}
+            onInput={(e) => {
+              const v = Number(e.currentTarget.value);
+              setLastFixed(v);
+              set("warning_after_s", v);
+            }}
+            aria-describedby="pf-warning-hint"
           />
-          <small class="muted">Time outside before the orange warning</small>
-        </label>
+          <label class="check">
+            <input
+              type="checkbox"
+              name="warning_adaptive"
+              checked={adaptive}
+              onChange={(e) => set("warning_after_s", e.currentTarget.checked ? null : lastFixed)}
+            />
+            Adaptive: {Math.round(f.max_outside_fraction * 100)} % of the last cycle
+          </label>
+          <small id="pf-warning-hint" class="muted">
+            Time outside before the orange warning
+          </small>
+        </div>
         <label class="field">
           <span>
             Compensatory when outside more than <span class="muted">(% of a cycle)</span>

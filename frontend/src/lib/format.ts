@@ -48,3 +48,12 @@ export function duration(startIso: string, endIso: string | null, now = Date.now
   const m = Math.floor(s / 60);
   return m ? `${m} min ${String(s % 60).padStart(2, "0")} s` : `${s} s`;
 }
+
+/** The tolerated time outside before the warning; null: adaptive (a share of the last cycle). */
+export function warningAfter(s: number | null | undefined, maxOutsideFraction: number | null | undefined): string {
+  if (s === null) {
+    const share = maxOutsideFraction ?? 0.2;
+    return `warning after ${Math.round(share * 100)} % of the last cycle (adaptive)`;
+  }
+  return s === undefined || !Number.isFinite(s) ? "–" : `warning after ${num(s, 1, "s")}`;
+}

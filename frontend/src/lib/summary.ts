@@ -1,6 +1,7 @@
-// Figures of a session for trends, from its stored summary or its report (either shape).
+// Figures of a session for a patient's history and trends, from the summary the sessions
+// list carries (GET /api/sessions): no report is fetched (a report is an audited export).
 
-import type { Report } from "./types";
+import type { SessionSummary } from "./types";
 
 export interface SessionFigures {
   cycles: number | null;
@@ -10,6 +11,7 @@ export interface SessionFigures {
   elevRange: number | null;
   azimRange: number | null;
   dispMedian: number | null;
+  dispP95: number | null;
 }
 
 function n(x: unknown): number | null {
@@ -20,9 +22,10 @@ function obj(x: unknown): Record<string, unknown> | null {
   return x && typeof x === "object" && !Array.isArray(x) ? (x as Record<string, unknown>) : null;
 }
 
+/** The robust range (p5..p95) of a range of motion, else max − min. */
 function rangeOf(x: unknown): number | null {
   const o = obj(x);
-  if (!o) return n(x);
+  if (!o) return null;
   const r = n(o.range);
   if (r !== null) return r;
   const lo = n(o.p5) ?? n(o.min);
@@ -30,29 +33,21 @@ function rangeOf(x: unknown): number | null {
   return lo !== null && hi !== null ? hi - lo : null;
 }
 
-export function figuresOf(src: Record<string, unknown> | Report | null | undefined): SessionFigures | null {
-  const r = obj(src);
-  if (!r) return null;
-  const s = obj(r.summary) ?? r;
-  const cycleList = Array.isArray(r.cycles) ? (r.cycles as { compensatory?: boolean }[]) : null;
-  const cycles = n(s.cycles) ?? (cycleList ? cycleList.length : null);
-  const comp = n(s.compensatory_cycles) ?? (cycleList ? cycleList.filter((c) => c.compensatory).length : null);
-  const share = n(s.compensatory_share) ?? (cycles && comp !== null ? comp / cycles : null);
-  const disp = obj(r.shoulder_displacement_m);
+/** The figures of a summary, or null when it has none (a session without data). */
+export function figuresOf(s: SessionSummary | null | undefined): SessionFigures | null {
+  if (!s) return null;
+  const cycles = n(s.cycles);
+  const comp = n(s.compensatory_cycles);
+  const disp = obj(s.shoulder_displacement_m);
   const f: SessionFigures = {
     cycles,
     compensatory: comp,
-    compShare: share,
-    elbowRange: rangeOf(r.elbow_flexion_deg ?? s.elbow_flexion_deg),
-    elevRange: rangeOf(r.upper_arm_elevation_deg ?? s.upper_arm_elevation_deg),
-    azimRange: rangeOf(r.upper_arm_azimuth_deg ?? s.upper_arm_azimuth_deg),
-    dispMedian: disp ? n(disp.median) : n(s.shoulder_displacement_median_m),
+    compShare: n(s.compensatory_share) ?? (cycles && comp !== null ? comp / cycles : null),
+    elbowRange: rangeOf(s.elbow_flexion_deg),
+    elevRange: rangeOf(s.upper_arm_elevation_deg),
+    azimRange: rangeOf(s.upper_arm_azimuth_deg),
+    dispMedian: disp ? n(disp.median) : null,
+    dispP95: disp ? n(disp.p95) : null,
   };
-  const any = Object.values(f).some((v) => v !== null);
-  return any ? f : null;
-}
-
-/** Whether the figures suffice for the trends (else the report is fetched). */
-export function complete(f: SessionFigures | null): boolean {
-  return !!f && f.compShare !== null && f.elbowRange !== null && f.elevRange !== null;
+  return Object.values(f).some((v) => v !== null) ? f : null;
 }

@@ -26,7 +26,8 @@ export interface Params {
   tolerance_m: number;
   max_outside_fraction: number;
   displacement_norm: Norm;
-  warning_after_s: number;
+  /** Seconds outside before the warning; null: adaptive (max_outside_fraction × the last cycle). */
+  warning_after_s: number | null;
   nominal_shoulder_m: number[] | null;
 }
 
@@ -39,7 +40,7 @@ export interface PatientFields {
   tolerance_m: number;
   max_outside_fraction: number;
   displacement_norm: Norm;
-  warning_after_s: number;
+  warning_after_s: number | null;
   notes: string;
 }
 
@@ -94,7 +95,24 @@ export interface Session {
   params: Partial<Params> & Record<string, unknown>;
   recording_path: string | null;
   nominal_shoulder: NominalShoulder | null;
-  summary: Record<string, unknown> | null;
+  summary: SessionSummary | null;
+}
+
+/** What the sessions table keeps of a finished session's report (GET /api/sessions): enough
+ * for a patient's history without fetching reports. */
+export interface SessionSummary {
+  rows?: number | null;
+  cycles?: number | null;
+  compensatory_cycles?: number | null;
+  compensatory_share?: number | null;
+  time_outside_share?: number | null;
+  heading_converged_t?: number | null;
+  shoulder_displacement_m?: Spread | null;
+  elbow_flexion_deg?: Range | null;
+  upper_arm_elevation_deg?: Range | null;
+  upper_arm_azimuth_deg?: Range | null;
+  rejected_messages?: number | null;
+  [key: string]: unknown;
 }
 
 export interface Cycle {
@@ -115,6 +133,12 @@ export interface OverlayLink {
   expires_at: string;
   device: string;
   session_id: number;
+}
+
+export interface Spread {
+  median: number | null;
+  p95: number | null;
+  max: number | null;
 }
 
 export interface Range {
@@ -141,7 +165,7 @@ export interface Report {
   heading?: { method?: string; first_motion_t?: number | null; converged_t?: number | null };
   upper_arm_length_m?: number;
   upper_arm_length_estimated?: boolean;
-  shoulder_displacement_m?: { median: number | null; p95: number | null; max: number | null };
+  shoulder_displacement_m?: Spread;
   elbow_flexion_deg?: Range;
   upper_arm_elevation_deg?: Range;
   upper_arm_azimuth_deg?: Range;

@@ -4,7 +4,7 @@ import { Alert, ConnectionNote, CycleCounts, CycleTable, KeyFigure, OnlineDot, Q
 import { IndicatorBox, LivePlots, useFrames, useLiveClient } from "../components/live";
 import { Viz3D } from "../components/Viz3D";
 import { api, errorText } from "../lib/api";
-import { dateTime, duration, num } from "../lib/format";
+import { dateTime, duration, num, warningAfter } from "../lib/format";
 import type { DeviceLive } from "../lib/live";
 import type { Cycle, Device, OverlayLink, Patient, Session } from "../lib/types";
 
@@ -339,7 +339,7 @@ export function LivePage({ device }: { device: string }) {
             <KeyFigure label="Displacement" value={num(L.disp !== null ? L.disp * 100 : null, 1, "cm")} hint={`tolerance ${Math.round(tolerance * 100)} cm`} />
             <KeyFigure label="Elbow angle" value={num(L.elbow, 0, "°")} />
             <KeyFigure label="Upper-arm elevation" value={num(L.elev, 0, "°")} />
-            <KeyFigure label="Outside for" value={outsideFor !== null ? num(outsideFor, 1, "s") : "–"} hint={`warning after ${num(Number(active?.params.warning_after_s ?? 1), 1, "s")}`} />
+            <KeyFigure label="Outside for" value={outsideFor !== null ? num(outsideFor, 1, "s") : "–"} hint={active ? warningAfter(active.params.warning_after_s, active.params.max_outside_fraction) : undefined} />
           </div>
         </section>
         <section class="card live-plots" aria-labelledby="plots-title">

@@ -5,10 +5,10 @@ import { Alert, KeyFigure } from "../components/bits";
 import { PatientForm } from "../components/PatientForm";
 import { StaticChart } from "../components/StaticChart";
 import { api, errorText } from "../lib/api";
-import { dateTime, deg, duration, pct, shortDate } from "../lib/format";
+import { cm, dateTime, deg, duration, pct, shortDate, warningAfter } from "../lib/format";
 import { LINE, type ChartSpec } from "../lib/plots";
-import { complete, figuresOf, type SessionFigures } from "../lib/summary";
-import { unwrapReport, type Device, type Patient, type ReportOut, type Session } from "../lib/types";
+import { figuresOf, type SessionFigures } from "../lib/summary";
+import type { Device, Patient, Session } from "../lib/types";
 
 const STATUS_TEXT: Record<Session["status"], string> = {
   active: "● Running",
@@ -64,7 +64,6 @@ function Trends({ sessions, figures }: { sessions: Session[]; figures: Map<numbe
 export function PatientPage({ id }: { id: number }) {
   const [patient, setPatient] = useState<Patient | null>(null);
   const [sessions, setSessions] = useState<Session[] | null>(null);
-  const [figures, setFigures] = useState<Map<number, SessionFigures>>(new Map());
   const [devices, setDevices] = useState<Device[]>([]);
   const [device, setDevice] = useState("");
   const [editing, setEditing] = useState(false);
@@ -82,37 +81,25 @@ export function PatientPage({ id }: { id: number }) {
         if (free) setDevice(free.name);
       })
       .catch(() => undefined);
+    // Each finished session's summary carries its figures (range of motion included):
+    // the history reads no report.
     api
       .get<Session[]>(`/api/sessions?patient_id=${id}&limit=200`)
-      .then(async (list) => {
-        if (!alive) return;
-        setSessions(list);
-        const figs = new Map<number, SessionFigures>();
-        const missing: Session[] = [];
-        for (const s of list) {
-          if (s.status === "active") continue;
-          const f = figuresOf(s.summary);
-          if (complete(f)) figs.set(s.id, f!);
-          else missing.push(s);
-        }
-        setFigures(new Map(figs));
-        // Older sessions without a stored summary: read their reports (newest 30).
-        for (const s of missing.slice(0, 30)) {
-          try {
-            const f = figuresOf(unwrapReport(await api.get<ReportOut>(`/api/sessions/${s.id}/report`)));
-            if (f) figs.set(s.id, f);
-          } catch {
-            /* a session without data has no report */
-          }
-          if (!alive) return;
-          setFigures(new Map(figs));
-        }
-      })
+      .then((list) => alive && setSessions(list))
       .catch((e) => setError(errorText(e)));
     return () => {
       alive = false;
     };
   }, [id]);
+
+  const figures = useMemo(() => {
+    const figs = new Map<number, SessionFigures>();
+    for (const s of sessions ?? []) {
+      const f = s.status === "active" ? null : figuresOf(s.summary);
+      if (f) figs.set(s.id, f);
+    }
+    return figs;
+  }, [sessions]);
 
   if (error) return <Alert kind="error">{error}</Alert>;
   if (!patient) return <p role="status">Loading…</p>;
@@ -126,8 +113,7 @@ export function PatientPage({ id }: { id: number }) {
       <div class="page__head">
         <h1 id="patient-title">Patient {patient.code}</h1>
         <span class="muted">
-          {patient.affected_side === "left" ? "Left" : "Right"} arm affected · tolerance {Math.round(patient.tolerance_m * 100)} cm · warning after{" "}
-          {patient.warning_after_s} s
+          {patient.affected_side === "left" ? "Left" : "Right"} arm affected · tolerance {Math.round(patient.tolerance_m * 100)} cm · {warningAfter(patient.warning_after_s, patient.max_outside_fraction)}
         </span>
         <button type="button" class="btn btn--ghost" aria-expanded={editing} onClick={() => setEditing(!editing)}>
           {editing ? "Close" : "Edit"}
@@ -202,6 +188,9 @@ export function PatientPage({ id }: { id: number }) {
                   <th scope="col">Cycles</th>
                   <th scope="col">Compensatory</th>
                   <th scope="col">Elbow range</th>
+                  <th scope="col">Elevation range</th>
+                  <th scope="col">Azimuth range</th>
+                  <th scope="col">Shoulder displacement (median / p95)</th>
                   <th scope="col">
                     <span class="sr-only">Report</span>
                   </th>
@@ -219,6 +208,11 @@ export function PatientPage({ id }: { id: number }) {
                       <td>{f?.cycles ?? "–"}</td>
                       <td>{pct(f?.compShare)}</td>
                       <td>{deg(f?.elbowRange)}</td>
+                      <td>{deg(f?.elevRange)}</td>
+                      <td>{deg(f?.azimRange)}</td>
+                      <td>
+                        {cm(f?.dispMedian)} / {cm(f?.dispP95)}
+                      </td>
                       <td>
                         {s.status === "active" ? (
                           <a href={`/devices/${s.device}`}>Live view</a>

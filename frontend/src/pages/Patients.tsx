@@ -76,7 +76,7 @@ export function PatientsPage() {
                   </th>
                   <td>{p.affected_side === "left" ? "Left" : "Right"}</td>
                   <td>{Math.round(p.tolerance_m * 100)} cm</td>
-                  <td>{p.warning_after_s} s</td>
+                  <td>{p.warning_after_s === null ? "adaptive" : `${p.warning_after_s} s`}</td>
                   <td>{Math.round(p.upper_arm_length_m * 100)} cm</td>
                   <td>
                     <a href={`/patients/${p.id}`}>History</a>
