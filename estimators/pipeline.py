@@ -198,8 +198,9 @@ class _ImuStage:
     """6D orientation and elbow-acceleration terms at the IMU rate (frame I)."""
 
     # buffer columns: t, segment id, q_IA (4), the 6D filter's sensor orientation q_IS (4),
-    # specific force in the sensor frame (3), paper method's eq. 1–2 acceleration (3)
-    T, SEG, Q, QS, ACC, V, WIDTH = 0, 1, 2, 6, 10, 13, 16
+    # specific force in the sensor frame (3), paper method's eq. 1–2 acceleration (3), the
+    # gyro in frame A (3: predicts q_IA past the newest sample)
+    T, SEG, Q, QS, ACC, V, W, WIDTH = 0, 1, 2, 6, 10, 13, 16, 19
 
     def __init__(self, p: PipelineParams) -> None:
         self.p = p
@@ -208,6 +209,7 @@ class _ImuStage:
         self.identity_mount = bool(np.array_equal(self.mount, [1.0, 0.0, 0.0, 0.0]))
         # lever arm IMU → elbow in the sensor frame (eq. 1's r = [d, 0, 0] in A)
         self.r = quat.rotate(self.mount, EX * p.imu_to_elbow_m)
+        self.unmount = quat.conj(self.mount)  # sensor frame → A, for the gyro
         self.ts: float | None = None
         self.probe: list[tuple[Array, Array, Array]] = []
         self.vqf: VQF | None = None
@@ -312,9 +314,10 @@ class _ImuStage:
             gdot = (gf - prev) / self.ts  # backward difference of the low-passed gyro (eq. 1)
             self.gyro_prev = gf[-1].copy()
             v = kin.inertial_acceleration(q_is, kin.joint_specific_force(acc, gyr, gdot, self.r))
-        # one concatenate: cheaper than assigning six column blocks of a few rows
+        w_a = gyr if self.identity_mount else quat.rotate(self.unmount, gyr)
+        # one concatenate: cheaper than assigning seven column blocks of a few rows
         seg = np.full((n, 1), float(self.seg))
-        self.buf.append(np.concatenate((t[:, None], seg, q_ia, q_is, acc, v), axis=1))
+        self.buf.append(np.concatenate((t[:, None], seg, q_ia, q_is, acc, v, w_a), axis=1))
         self.tl.extend(t.tolist() if tl is None else tl)
 
     def trim(self, t_keep: float) -> None:
@@ -376,9 +379,11 @@ class _ImuStage:
         w = np.clip((s - t[i0]) / (t[i1c] - t[i0]), 0.0, 1.0)
         return ok, i0, i1c, w
 
-    def interp(self, s: Array) -> tuple[Idx, tuple[Array, ...], Array]:
+    def interp(self, s: Array, asof: Array) -> tuple[Idx, tuple[Array, ...], Array]:
         """Orientation q_IA (w, x, y, z columns) at times ``s`` (nlerp, :func:`rows.nlerp`);
-        ``ok`` where both neighbours exist in one segment; also the segment ids.
+        ``ok`` where both neighbours exist in one segment; also the segment ids. Where
+        ``s > asof`` (the IMU had only reached ``asof`` when the row was decided), predicted
+        from the newest sample at or before ``asof`` (:func:`rows.predict`).
         Bit-identical to :meth:`at` for each time."""
         if len(self.tl) < 2:
             nan = np.full(len(s), np.nan)
@@ -387,14 +392,42 @@ class _ImuStage:
         q = self.buf.cols(self.Q, self.Q + 4)
         q0 = tuple(q[i0, j] for j in range(4))
         q1 = tuple(q[i1, j] for j in range(4))
-        return ok, rows.nlerp(rows.VECTOR, q0, q1, w), self.segid[i1]
+        qs, seg = rows.nlerp(rows.VECTOR, q0, q1, w), self.segid[i1]
+        ahead = np.flatnonzero(s > asof)
+        if len(ahead):
+            t = np.ascontiguousarray(self.t)
+            j = np.searchsorted(t, asof[ahead], side="right") - 1
+            jc = np.maximum(j, 0)
+            wa = self.buf.cols(self.W, self.W + 3)
+            qp = rows.predict(
+                rows.VECTOR,
+                tuple(q[jc, c] for c in range(4)),
+                tuple(wa[jc, c] for c in range(3)),
+                s[ahead] - t[jc],
+            )
+            qs = tuple(a.copy() for a in qs)
+            for a, b in zip(qs, qp, strict=True):
+                a[ahead] = b
+            ok = ok.copy()
+            ok[ahead] = j >= 0
+            seg = seg.copy()
+            seg[ahead] = self.segid[jc]
+        return ok, qs, seg
 
-    def at(self, s: float) -> tuple[bool, tuple[float, ...], float]:
+    def at(self, s: float, asof: float) -> tuple[bool, tuple[float, ...], float]:
         """:meth:`interp` for one time, with Python floats (a single row costs ~20× less)."""
         tl = self.tl
         n = len(tl)
         if n < 2:
             return False, NAN4, 0.0
+        if s > asof:
+            j = bisect.bisect_right(tl, asof) - 1
+            r = self.buf.a[self.buf.lo + max(j, 0)].tolist()
+            q = rows.predict(
+                rows.SCALAR, tuple(r[self.Q : self.Q + 4]), tuple(r[self.W : self.W + 3]),
+                s - tl[max(j, 0)],
+            )
+            return j >= 0, q, r[self.SEG]
         i1 = bisect.bisect_left(tl, s)
         i1c = min(max(i1, 1), n - 1)
         i0 = i1c - 1
@@ -641,7 +674,9 @@ class Pipeline:
         # rows: robot samples in order; decided[i] = (with_imu, nominal_spec)
         self._row_t: list[float] = []
         self._n_decided = 0
-        self._decisions: list[tuple[bool, int]] = []
+        # (with IMU, nominal spec, the newest IMU stamp the row may use: inf once the IMU
+        # has reached the row, else its prediction starts there)
+        self._decisions: list[tuple[bool, int, float]] = []
         self._n_done = 0
         self._rowbuf = RowBuffer(9)  # wrist, p_E, x_C of the robot samples not yet emitted
         # heading
@@ -770,23 +805,30 @@ class Pipeline:
         return True
 
     def _decide(self) -> None:
-        """Mark robot samples ready: the IMU has reached them, or the robot ran ahead by
-        ``imu_wait_s`` (then they are emitted without IMU-derived values)."""
+        """Mark robot samples ready: the IMU has reached them, or is at most
+        ``imu_predict_s`` behind (the upper arm is then predicted from the newest IMU
+        sample), or the robot ran ahead by ``imu_wait_s`` (then they are emitted without
+        IMU-derived values). Decided in feed order, so batching changes nothing."""
         off = self.params.robot_time_offset_s
         wait = self.params.imu_wait_s
+        ahead = self.params.imu_predict_s
+        front = self._imu_frontier
         n = len(self._row_t)
         i = self._n_decided
         spec = len(self._specs) - 1
         while i < n:
             tr = self._row_t[i]
-            with_imu = self._imu_frontier >= tr - off
-            if not with_imu and self._robot_frontier < tr + wait:
+            asof = math.inf
+            with_imu = front >= tr - off
+            if not with_imu and tr - off - front <= ahead:
+                with_imu, asof = True, front
+            elif not with_imu and self._robot_frontier < tr + wait:
                 break
             # the latest nominal spec (in feed order) whose time has come
             k = spec
             while k > 0 and self._specs[k][1] > tr:
                 k -= 1
-            self._decisions.append((with_imu, k))
+            self._decisions.append((with_imu, k, asof))
             i += 1
         self._n_decided = i
 
@@ -1032,18 +1074,19 @@ class Pipeline:
         out.episodes = episodes
         return out
 
-    def _row(self, t: float, dec: tuple[bool, int], r: list[float]) -> list[float]:
+    def _row(self, t: float, dec: tuple[bool, int, float], r: list[float]) -> list[float]:
         """One row in Python floats, in ``_LAYOUT`` order (state filled in later)."""
         M = rows.SCALAR
         p = self.params
-        with_imu, k = dec
+        with_imu, k, asof = dec
         s = t - p.robot_time_offset_s
-        i = bisect.bisect_right(self._snap_t, s - self._snap_lag) - 1
+        # the heading updates the grid had surely produced when the row was decided
+        i = bisect.bisect_right(self._snap_t, min(s, asof) - self._snap_lag) - 1
         snap = self._snaps[i] if i >= 0 else NAN8
         lat = snap[7]
         latency = M.maximum(lat, 0.0) if math.isfinite(lat) else 0.0
-        ok_p, q_p, seg_p = self._imu.at(s - latency)
-        ok_n, q_n, seg_n = self._imu.at(s)
+        ok_p, q_p, seg_p = self._imu.at(s - latency, asof)
+        ok_n, q_n, seg_n = self._imu.at(s, asof)
         ok = ok_p and with_imu and ok_n and seg_n == seg_p
         h = rows.heading(M, s, ok, snap, seg_p)
         q_ra, x_now, x_a = rows.upper_arm(M, h.delta, h.good, q_n, q_p)
@@ -1067,7 +1110,9 @@ class Pipeline:
             h.confidence, elev, azim, *nom, conv, *wrist, la,
         ]  # fmt: skip
 
-    def _rows_vector(self, t: Array, dec: list[tuple[bool, int]], block: Array) -> Array:
+    def _rows_vector(
+        self, t: Array, dec: list[tuple[bool, int, float]], block: Array
+    ) -> Array:
         """:meth:`_row` for many rows at once, as arrays: (n, ``_NCOL``)."""
         M = rows.VECTOR
         p = self.params
@@ -1075,16 +1120,19 @@ class Pipeline:
         s = t - p.robot_time_offset_s
         with_imu = np.array([d[0] for d in dec], dtype=bool)
         spec = [d[1] for d in dec]
+        asof = np.array([d[2] for d in dec])
         if self._snaps:
-            si = np.searchsorted(np.array(self._snap_t), s - self._snap_lag, side="right") - 1
+            si = np.searchsorted(
+                np.array(self._snap_t), np.minimum(s, asof) - self._snap_lag, side="right"
+            ) - 1
             sn = np.array(self._snaps)[np.maximum(si, 0)]
             sn[si < 0] = np.nan
         else:
             sn = np.full((n, 8), np.nan)
         snap = tuple(sn[:, j] for j in range(8))
         latency = np.where(np.isfinite(sn[:, 7]), np.maximum(sn[:, 7], 0.0), 0.0)
-        ok_p, q_p, seg_p = self._imu.interp(s - latency)
-        ok_n, q_n, seg_n = self._imu.interp(s)
+        ok_p, q_p, seg_p = self._imu.interp(s - latency, asof)
+        ok_n, q_n, seg_n = self._imu.interp(s, asof)
         ok = ok_p & with_imu & ok_n & (seg_n == seg_p)
         h = rows.heading(M, s, ok, snap, seg_p)
         q_ra, x_now, x_a = rows.upper_arm(M, h.delta, h.good, q_n, q_p)

@@ -136,6 +136,22 @@ def nlerp(M: Any, a: tuple[Any, ...], b: tuple[Any, ...], s: Any) -> tuple[Any, 
     return w / n, x / n, y / n, z / n
 
 
+def predict(M: Any, q: tuple[Any, ...], w: tuple[Any, ...], dt: Any) -> tuple[Any, ...]:
+    """The orientation ``dt`` s after unit quaternion ``q`` (w, x, y, z) at the body rate
+    ``w`` (rad/s, in the rotated frame): ``q ⊗ (1, w·dt/2)``, normalised. First order in
+    ``|w|·dt``: over the ≤ 0.05 s it bridges at 3 rad/s the angle is short by < 3e-4 rad."""
+    h = 0.5 * dt
+    bx, by, bz = w[0] * h, w[1] * h, w[2] * h
+    aw, ax, ay, az = q
+    rw = aw - ((ax * bx + ay * by) + az * bz)
+    rx = (aw * bx + ax) + (ay * bz - az * by)
+    ry = (aw * by + ay) + (az * bx - ax * bz)
+    rz = (aw * bz + az) + (ax * by - ay * bx)
+    n = M.sqrt(((rw * rw + rx * rx) + ry * ry) + rz * rz)
+    n = M.where(n > 0.0, n, NAN)
+    return rw / n, rx / n, ry / n, rz / n
+
+
 class Heading(NamedTuple):
     """Heading offset per row and what follows from it (all (n,) or floats)."""
 

@@ -166,7 +166,10 @@ def test_long_imu_gap_resets_heading_and_reconverges(short_session: Session) -> 
     out, p = _run(msgs)
     assert p.quality.imu_resets == 1 and p.quality.heading_resets == 1
     t, conv = out.rows["t"], out.rows["heading_converged"]
-    inside = (t > 40.0) & (t < 43.0)
+    last_imu = max(float(m.t[-1]) for m in msgs if isinstance(m, wire.ImuMessage) and m.t[-1] < 41)
+    # rows are predicted at most imu_predict_s past the newest IMU sample, never across a gap
+    inside = (t > last_imu + p.params.imu_predict_s) & (t < 43.0)
+    assert conv[(t > last_imu) & (t < 43.0)].sum() <= 2
     assert not conv[inside].any()  # never silently interpolated across seconds
     assert np.isnan(out.rows["shoulder"][inside]).all()
     assert conv[t > 80].all()  # re-converged
@@ -303,3 +306,35 @@ def test_tolerated_time_episodes_for_non_repetitive_tasks(
         assert e.duration_s > 0.5
         k = np.clip(np.searchsorted(tr.t, 0.5 * (e.start + e.end)), 0, len(tr.t) - 1)
         assert tr.phase[k] in (2, 3)
+
+
+def test_rows_do_not_wait_for_the_next_imu_message(short_session: Session) -> None:
+    """A robot sample the IMU has not quite reached (the simulated IMU sends 4 samples per
+    message, released with the last) is computed on arrival, the upper arm predicted from
+    the newest IMU sample by its gyro; waiting for the IMU instead changes next to nothing."""
+    msgs = short_session.messages
+    now, waits = Pipeline(PipelineParams()), Pipeline(PipelineParams(imu_predict_s=0.0))
+    robot = ready_now = ready_waits = 0  # robot messages whose row is out at once
+    out_now, out_waits = Output(), Output()
+    for m in msgs:
+        now.feed(m)
+        waits.feed(m)
+        if isinstance(m, wire.RobotMessage):
+            robot += 1
+            o_now, o_waits = now.poll(), waits.poll()
+            ready_now += bool(o_now.n) and o_now.rows["t"][-1] == m.t[-1]
+            ready_waits += bool(o_waits.n) and o_waits.rows["t"][-1] == m.t[-1]
+            out_now.extend(o_now)
+            out_waits.extend(o_waits)
+    out_now.extend(now.finish())
+    out_waits.extend(waits.finish())
+    assert ready_now >= 0.99 * robot
+    assert ready_waits <= 0.5 * robot
+    a, b = out_now.rows, out_waits.rows
+    np.testing.assert_array_equal(a["t"], b["t"])
+    both = a["heading_converged"] & b["heading_converged"]
+    assert both.sum() > 0.5 * len(both)
+    sh = np.linalg.norm(a["shoulder"] - b["shoulder"], axis=1)[both]
+    assert sh.max() < 1e-3
+    el = np.abs(a["elbow_angle_deg"] - b["elbow_angle_deg"])[both]
+    assert 0 < el.max() < 0.2
