@@ -153,13 +153,14 @@ def motion_subwindows(w: Window, params: HeadingParams, t_end: float) -> int:
     edges = t_end - params.window_s + sub * np.arange(params.n_subwindows + 1)
     idx = np.searchsorted(w.t, edges, side="right")
     count = 0
+    limit = 0.25 * params.motion_diameter_m * params.motion_diameter_m  # radius², m²
     for i in range(params.n_subwindows):
         sl = slice(idx[i], idx[i + 1])
         p = w.p[sl][w.valid[sl]]
         if p.shape[0] < 2:
             continue
-        r = np.max(np.linalg.norm(p - p.mean(axis=0), axis=1))
-        if 2.0 * r > params.motion_diameter_m:
+        q = p - p.mean(axis=0)
+        if float(np.einsum("ij,ij->i", q, q).max()) > limit:
             count += 1
     return count
 
@@ -221,27 +222,29 @@ def fit_drift(
     n_eff = max(1.0, span * params.effective_rate_hz)
     sig_rho = math.radians(params.drift_prior_std_dps)
     d, r = d0, rate0
-    h = np.zeros((2, 2))
+    inv_prior = 1.0 / (sig_rho * sig_rho)
+    # the 2x2 Newton system in closed form (numpy's linalg costs ~10 µs a call at this size)
+    h00 = h01 = h11 = det = 0.0
     for _ in range(n_iter):
         e = d + r * tau
         ce, se = np.cos(e), np.sin(e)
         f = sck * ce + ssk * se  # per-sample alignment
         g = ssk * ce - sck * se  # its derivative wrt e
-        resid = max(e2 - 2.0 * float(np.sum(f)), 1e-12)
+        sf = float(f.sum())
+        resid = max(e2 - 2.0 * sf, 1e-12)
         kappa = n_eff / n / (resid / (2.0 * n))
-        sf, sft, sftt = float(np.sum(f)), float(np.sum(f * tau)), float(np.sum(f * tau * tau))
-        grad = np.array(
-            [kappa * float(np.sum(g)), kappa * float(np.sum(g * tau)) - (r - rate0) / sig_rho**2]
-        )
-        h = np.array([[kappa * sf, kappa * sft], [kappa * sft, kappa * sftt + 1.0 / sig_rho**2]])
-        if not np.all(np.isfinite(h)) or np.linalg.det(h) <= 0:
+        ft = f * tau
+        g0 = kappa * float(g.sum())
+        g1 = kappa * float(g @ tau) - (r - rate0) * inv_prior
+        h00, h01, h11 = kappa * sf, kappa * float(ft.sum()), kappa * float(ft @ tau) + inv_prior
+        det = h00 * h11 - h01 * h01
+        if not (math.isfinite(det) and det > 0.0):
             break
-        step = np.linalg.solve(h, grad)
-        d, r = d + float(step[0]), r + float(step[1])
-    try:
-        cov = np.linalg.inv(h)
-        sd, sr = math.sqrt(max(cov[0, 0], 0.0)), math.sqrt(max(cov[1, 1], 0.0))
-    except np.linalg.LinAlgError:
+        d += (h11 * g0 - h01 * g1) / det
+        r += (h00 * g1 - h01 * g0) / det
+    if det != 0.0 and math.isfinite(det):
+        sd, sr = math.sqrt(max(h11 / det, 0.0)), math.sqrt(max(h00 / det, 0.0))
+    else:
         sd, sr = math.inf, sig_rho
     return wrap(d), r, sd, sr
 
@@ -265,12 +268,11 @@ def estimate_lag(w: Window, params: HeadingParams, dt: float) -> tuple[float, fl
     if np.count_nonzero(inner) < 10:
         return 0.0, 0.0
     ti = t[inner]
-    costs = np.empty(len(lags))
-    for i, lag in enumerate(lags):
-        # a at t − lag paired with b at t (robot late by lag)
-        dz = np.interp(ti - lag, t, a[:, 2]) - b[inner, 2]
-        dh = np.interp(ti - lag, t, ah) - bh[inner]
-        costs[i] = float(np.sum(dz * dz + dh * dh))
+    # a at t − lag paired with b at t (robot late by lag), every lag in one call
+    s = (ti[None, :] - lags[:, None]).ravel()
+    dz = np.interp(s, t, a[:, 2]).reshape(len(lags), -1) - b[inner, 2]
+    dh = np.interp(s, t, ah).reshape(len(lags), -1) - bh[inner]
+    costs = np.sum(dz * dz + dh * dh, axis=1)
     k = int(np.argmin(costs))
     if k == 0 or k == len(lags) - 1:
         return 0.0, 0.0
