@@ -199,8 +199,8 @@ class _ImuStage:
 
     # buffer columns: t, segment id, q_IA (4), the 6D filter's sensor orientation q_IS (4),
     # specific force in the sensor frame (3), paper method's eq. 1–2 acceleration (3), the
-    # gyro in frame A (3: predicts q_IA past the newest sample)
-    T, SEG, Q, QS, ACC, V, W, WIDTH = 0, 1, 2, 6, 10, 13, 16, 19
+    # gyro in frame A and its backward difference (3 + 3: predict q_IA past the newest sample)
+    T, SEG, Q, QS, ACC, V, W, DW, WIDTH = 0, 1, 2, 6, 10, 13, 16, 19, 22
 
     def __init__(self, p: PipelineParams) -> None:
         self.p = p
@@ -218,6 +218,7 @@ class _ImuStage:
         self.gyro_lp: LowPass | None = None
         self.gyro_zi: Array | None = None
         self.gyro_prev: Array | None = None
+        self.w_prev: tuple[float, Array] | None = None  # last (t, ω_A) of this segment
         self.buf = RowBuffer(self.WIDTH)
         self.tl: list[float] = []  # the buffer's times as floats (bisect for single rows)
 
@@ -234,6 +235,7 @@ class _ImuStage:
         self.vqf = VQF(self.ts, tauAcc=self.p.vqf_tau_acc_s)
         self.gyro_zi = None
         self.gyro_prev = None
+        self.w_prev = None
 
     def process(self, t: Array, gyr: Array, acc: Array, q: Quality) -> None:
         if self.ts is None:
@@ -315,9 +317,14 @@ class _ImuStage:
             self.gyro_prev = gf[-1].copy()
             v = kin.inertial_acceleration(q_is, kin.joint_specific_force(acc, gyr, gdot, self.r))
         w_a = gyr if self.identity_mount else quat.rotate(self.unmount, gyr)
-        # one concatenate: cheaper than assigning seven column blocks of a few rows
+        # angular acceleration: backward difference, 0 at a segment's first sample
+        t0, w0 = self.w_prev if self.w_prev is not None else (float(t[0]) - 1.0, w_a[0])
+        dw = np.diff(np.concatenate((w0[None], w_a)), axis=0)
+        dw /= np.diff(np.concatenate(([t0], t)))[:, None]
+        self.w_prev = (float(t[-1]), w_a[-1].copy())
+        # one concatenate: cheaper than assigning eight column blocks of a few rows
         seg = np.full((n, 1), float(self.seg))
-        self.buf.append(np.concatenate((t[:, None], seg, q_ia, q_is, acc, v, w_a), axis=1))
+        self.buf.append(np.concatenate((t[:, None], seg, q_ia, q_is, acc, v, w_a, dw), axis=1))
         self.tl.extend(t.tolist() if tl is None else tl)
 
     def trim(self, t_keep: float) -> None:
@@ -398,11 +405,12 @@ class _ImuStage:
             t = np.ascontiguousarray(self.t)
             j = np.searchsorted(t, asof[ahead], side="right") - 1
             jc = np.maximum(j, 0)
-            wa = self.buf.cols(self.W, self.W + 3)
+            wa = self.buf.cols(self.W, self.DW + 3)
             qp = rows.predict(
                 rows.VECTOR,
                 tuple(q[jc, c] for c in range(4)),
                 tuple(wa[jc, c] for c in range(3)),
+                tuple(wa[jc, 3 + c] for c in range(3)),
                 s[ahead] - t[jc],
             )
             qs = tuple(a.copy() for a in qs)
@@ -425,7 +433,7 @@ class _ImuStage:
             r = self.buf.a[self.buf.lo + max(j, 0)].tolist()
             q = rows.predict(
                 rows.SCALAR, tuple(r[self.Q : self.Q + 4]), tuple(r[self.W : self.W + 3]),
-                s - tl[max(j, 0)],
+                tuple(r[self.DW : self.DW + 3]), s - tl[max(j, 0)],
             )
             return j >= 0, q, r[self.SEG]
         i1 = bisect.bisect_left(tl, s)
