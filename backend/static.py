@@ -14,6 +14,7 @@ feed check the session cookie or the overlay token.
 from __future__ import annotations
 
 import logging
+import re
 from pathlib import Path
 from typing import Any
 
@@ -28,19 +29,36 @@ log = logging.getLogger(__name__)
 
 DEFAULT_DIST = Path(__file__).resolve().parent.parent / "frontend" / "dist"
 
-# The dashboard embeds the 3D view (viser) from its own port: frames from any origin of the
-# same host are allowed by frame-src; nothing is loaded from elsewhere.
-CSP = (
+# Everything comes from the service itself. The one exception is the 3D view (viser), which
+# the dashboard embeds in a frame from its own port on the same host: frame-src names that
+# host (any port), taken from the request, never any other host.
+CSP_BASE = (
     "default-src 'self'; script-src 'self'; style-src 'self' 'unsafe-inline'; "
-    "img-src 'self' data: blob:; connect-src 'self'; frame-src http: https:; "
-    "frame-ancestors 'self'; object-src 'none'; base-uri 'self'; form-action 'self'"
+    "img-src 'self' data: blob:; connect-src 'self'; frame-ancestors 'self'; "
+    "object-src 'none'; base-uri 'self'; form-action 'self'"
 )
-PAGE_HEADERS = {
-    "Cache-Control": "no-cache",
-    "Content-Security-Policy": CSP,
-    "X-Content-Type-Options": "nosniff",
-    "Referrer-Policy": "no-referrer",  # the overlay's URL carries its token
-}
+_HOSTNAME = re.compile(r"^[A-Za-z0-9](?:[A-Za-z0-9.-]{0,251}[A-Za-z0-9])?$")
+
+
+def content_security_policy(hostname: str | None) -> str:
+    """The pages' policy: ``'self'`` only, plus frames from ``hostname`` on any port (the
+    3D view's own port). A host name that is not a plain DNS name or IPv4 address (an IPv6
+    literal, garbage in the Host header) gets ``frame-src 'self'`` (the 3D view then works
+    only behind a reverse proxy that serves it under the same origin)."""
+    frames = "frame-src 'self'"
+    if hostname and _HOSTNAME.match(hostname) and ".." not in hostname:
+        frames += f" http://{hostname}:* https://{hostname}:*"
+    return f"{CSP_BASE}; {frames}"
+
+
+def page_headers(hostname: str | None) -> dict[str, str]:
+    return {
+        "Cache-Control": "no-cache",
+        "Content-Security-Policy": content_security_policy(hostname),
+        "X-Content-Type-Options": "nosniff",
+        "Referrer-Policy": "no-referrer",  # the overlay's URL carries its token
+    }
+
 
 NOT_BUILT = """<!doctype html><html lang="en"><head><meta charset="utf-8">
 <title>Dashboard not built</title></head><body style="font:18px system-ui;margin:3rem">
@@ -60,11 +78,11 @@ class _HashedAssets(StaticFiles):
         return response
 
 
-def _page(dist: Path, name: str) -> Response:
+def _page(dist: Path, name: str, request: Request) -> Response:
     path = dist / name
     if not path.is_file():
         return HTMLResponse(NOT_BUILT, status_code=503, headers={"Cache-Control": "no-store"})
-    return FileResponse(path, media_type="text/html", headers=PAGE_HEADERS)
+    return FileResponse(path, media_type="text/html", headers=page_headers(request.url.hostname))
 
 
 def _root_file(dist: Path, rel: str) -> Path | None:
@@ -85,13 +103,13 @@ def frontend_response(dist: Path, request: Request) -> Response | None:
     if path == "/api" or path.startswith("/api/"):
         return None
     if path in {"/overlay", "/overlay/", "/overlay.html"}:
-        return _page(dist, "overlay.html")
+        return _page(dist, "overlay.html", request)
     file = _root_file(dist, path.lstrip("/"))
     if file is not None:
         return FileResponse(file, headers={"Cache-Control": "public, max-age=3600"})
     if path.startswith("/assets/"):
         return None  # a missing bundle is a real 404, not the app
-    return _page(dist, "index.html")
+    return _page(dist, "index.html", request)
 
 
 def install_frontend(app: FastAPI, dist: Path | None = None) -> None:

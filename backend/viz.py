@@ -165,7 +165,7 @@ def trace_segments(
     xyz = np.array([p[:3] for p in trace], dtype=np.float64)
     rgb = np.array([STATE_RGB.get(p[3], STATE_RGB[None]) for p in trace], dtype=np.float64)
     age = np.linspace(1.0, 0.0, m) if m > 1 else np.zeros(1)  # 1 = oldest
-    fade = (1.0 - 0.9 * age)[:, None]
+    fade = (1.0 - 0.75 * age)[:, None]  # the oldest still visible against the white
     rgb = rgb * fade + BACKGROUND * (1.0 - fade)
     pts[:] = xyz[-1]
     if m > 1:
@@ -215,7 +215,7 @@ class _Scene:
         )
         pts, cols = trace_segments([])
         self.trace = s.add_line_segments(
-            "/arm/shoulder_trace", points=pts, colors=cols, thickness=0.008
+            "/arm/shoulder_trace", points=pts, colors=cols, thickness=0.012
         )
         self.wrist_cuff = s.add_cylinder(
             "/arm/wrist_cuff", radius=0.038, height=0.03, color=CUFF, opacity=0.85
@@ -359,6 +359,9 @@ class Viz:
                     control_width="small",
                     brand_color=(11, 61, 92),
                 )
+                # The dashboard explains the scene beside the frame: viser's own control
+                # panel (connection, scene tree, dev settings) starts collapsed to a bar.
+                server.gui.main_panel.minimize()
                 self._server = server
                 self._scene = _Scene(server)
                 self._scene.hide()

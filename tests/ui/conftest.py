@@ -14,7 +14,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,9 +36,12 @@ CHROMIUM_ARGS = [
 ]
 
 try:
-    from playwright.sync_api import Browser, ConsoleMessage, Page, sync_playwright
+    from playwright.sync_api import Browser, ConsoleMessage, Locator, Page, sync_playwright
 except ImportError:  # pragma: no cover - dev extra not installed
     sync_playwright = None
+
+
+NO_BROWSER = {"test_viz.py", "test_static.py"}  # these need neither chromium nor a build
 
 
 def _skip_reason() -> str | None:
@@ -57,7 +60,7 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
         return
     for item in items:
         path = Path(str(item.fspath))
-        if path.parent == Path(__file__).parent and path.name != "test_viz.py":
+        if path.parent == Path(__file__).parent and path.name not in NO_BROWSER:
             item.add_marker(pytest.mark.skip(reason=reason))
 
 
@@ -202,9 +205,11 @@ class SimDevice(threading.Thread):
 
 @dataclass
 class ConsoleLog:
-    """Console errors and page errors of every page of a context."""
+    """Console errors and page errors of every page of a context, and every URL its pages
+    (and their frames: the 3D view) requested or opened a WebSocket to."""
 
     errors: list[str] = field(default_factory=list)
+    urls: list[str] = field(default_factory=list)
 
     def watch(self, page: Page) -> Page:
         def on_console(msg: ConsoleMessage) -> None:
@@ -213,6 +218,8 @@ class ConsoleLog:
 
         page.on("console", on_console)
         page.on("pageerror", lambda exc: self.errors.append(f"{page.url}: {exc}"))
+        page.on("request", lambda r: self.urls.append(r.url))
+        page.on("websocket", lambda ws: self.urls.append(ws.url))
         return page
 
 
@@ -242,3 +249,129 @@ def shot(page: Page, name: str, **kw: Any) -> Path:
     path = shot_path(name)
     page.screenshot(path=str(path), **kw)
     return path
+
+
+# Added to every page of the test contexts (not to frames: the 3D view's stays as it is): a
+# gate on the pages' WebSockets, so a screenshot can hold the live feed still. Messages that
+# arrive while it is frozen are kept and delivered, in order, when it thaws.
+WS_GATE_JS = """(() => {
+  if (window.top !== window || window.__wsGate) return;
+  const Native = window.WebSocket;
+  const gate = { frozen: false, held: [] };
+  gate.freeze = () => { gate.frozen = true; };
+  gate.thaw = () => {
+    gate.frozen = false;
+    for (const [ws, data] of gate.held.splice(0)) {
+      ws.dispatchEvent(new MessageEvent("message", { data }));
+    }
+  };
+  window.__wsGate = gate;
+  window.WebSocket = class extends Native {
+    constructor(...args) {
+      super(...args);
+      this.addEventListener("message", (ev) => {
+        if (!gate.frozen) return;
+        ev.stopImmediatePropagation();
+        gate.held.push([this, ev.data]);
+      });
+    }
+  };
+})();"""
+
+
+def hold_when(page: Page, condition: str, *, timeout_s: float = 30) -> None:
+    """Hold the page's live feed still (``WS_GATE_JS``) as soon as the JavaScript expression
+    ``condition`` holds, renders already under way let through: the page then keeps showing
+    that moment until :func:`shot_held` (or ``window.__wsGate.thaw()``). Retried until
+    ``timeout_s``."""
+    freeze = f"""() => {{
+        window.__wsGate.freeze();
+        const frames = new Promise((done) =>
+            requestAnimationFrame(() => requestAnimationFrame(done)));
+        const later = new Promise((done) => setTimeout(done, 300));  // a page without frames
+        return Promise.race([frames, later]).then(() => {{
+            const ok = !!({condition});
+            if (!ok) window.__wsGate.thaw();
+            return ok;
+        }});
+    }}"""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        remaining_ms = max(1.0, (deadline - time.monotonic()) * 1000)
+        # A function, not an expression: the pages' CSP forbids eval.
+        page.wait_for_function(f"() => ({condition})", timeout=remaining_ms, polling=50)
+        if page.evaluate(freeze):
+            return
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{condition!r} never held still")
+
+
+def shot_held(
+    page: Page,
+    name: str,
+    condition: str,
+    *,
+    during: Callable[[], None] | None = None,
+    locator: Locator | None = None,
+    **kw: Any,
+) -> Path:
+    """The screenshot of a page (or of ``locator`` on it) held by :func:`hold_when`
+    (``condition`` still holds, and ``during`` is called on the same still page); then the
+    live feed goes on."""
+    path = shot_path(name)
+    try:
+        (locator or page).screenshot(path=str(path), **kw)
+        assert page.evaluate(f"() => !!({condition})"), f"{name}: {condition!r} no longer holds"
+        if during is not None:
+            during()
+    finally:
+        page.evaluate("() => window.__wsGate.thaw()")
+    return path
+
+
+def shot_while(
+    page: Page,
+    name: str,
+    condition: str,
+    *,
+    timeout_s: float = 30,
+    during: Callable[[], None] | None = None,
+    **kw: Any,
+) -> Path:
+    """A screenshot of the page while ``condition`` holds: live data would otherwise change
+    under the camera (a screenshot of "the warning" must show the warning)."""
+    hold_when(page, condition, timeout_s=timeout_s)
+    return shot_held(page, name, condition, during=during, **kw)
+
+
+def colour_pixels(page: Page, selector: str, rgb: str, tolerance: int = 60) -> int:
+    """How many pixels of the first canvas under ``selector`` are close to ``rgb``
+    (``#rrggbb``): a chart's series is drawn, not just its axes."""
+    r, g, b = (int(rgb[i : i + 2], 16) for i in (1, 3, 5))
+    js = """([sel, r, g, b, tol]) => {
+        const c = document.querySelector(sel);
+        if (!c) return -1;
+        const d = c.getContext("2d").getImageData(0, 0, c.width, c.height).data;
+        let n = 0;
+        for (let i = 0; i < d.length; i += 4) {
+            if (d[i + 3] > 0 && Math.abs(d[i] - r) + Math.abs(d[i + 1] - g)
+                + Math.abs(d[i + 2] - b) < tol) n++;
+        }
+        return n;
+    }"""
+    n: int = page.evaluate(js, [selector, r, g, b, tolerance])
+    assert n >= 0, f"no canvas at {selector}"
+    return n
+
+
+def contrast_ratio(fg: str, bg: str) -> float:
+    """WCAG contrast ratio of two CSS ``rgb(...)``/``rgba(...)`` colours."""
+
+    def lum(css: str) -> float:
+        vals = [float(v) for v in css[css.index("(") + 1 : css.index(")")].split(",")[:3]]
+        lin = [c / 255 / 12.92 if c / 255 <= 0.04045 else ((c / 255 + 0.055) / 1.055) ** 2.4
+               for c in vals]  # fmt: skip
+        return 0.2126 * lin[0] + 0.7152 * lin[1] + 0.0722 * lin[2]
+
+    a, b = sorted((lum(fg), lum(bg)), reverse=True)
+    return (a + 0.05) / (b + 0.05)

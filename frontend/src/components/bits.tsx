@@ -79,22 +79,25 @@ export function CycleTable({
   newestFirst = false,
   limit,
   caption,
+  full = false,
 }: {
   cycles: Cycle[];
   t0?: number;
   newestFirst?: boolean;
   limit?: number;
   caption: string;
+  /** every row on the page (a report), not in a scrolling box (a live list) */
+  full?: boolean;
 }) {
   let rows = newestFirst ? [...cycles].reverse() : cycles;
   if (limit) rows = rows.slice(0, limit);
   return (
-    <div class="table-wrap" tabIndex={0} role="region" aria-label={caption}>
+    <div class={full ? "table-wrap table-wrap--full" : "table-wrap"} tabIndex={full ? undefined : 0} role="region" aria-label={caption}>
       <table class="table">
         <caption class="sr-only">{caption}</caption>
         <thead>
           <tr>
-            <th scope="col">#</th>
+            <th scope="col">Cycle</th>
             <th scope="col">Start</th>
             <th scope="col">Duration</th>
             <th scope="col">Time outside</th>
@@ -104,7 +107,7 @@ export function CycleTable({
         <tbody>
           {rows.map((c) => (
             <tr key={c.index} class={c.compensatory ? "row--comp" : undefined}>
-              <td>{c.index}</td>
+              <td>{c.index + 1}</td>
               <td>{seconds(c.start - t0)}</td>
               <td>{seconds(c.end - c.start)}</td>
               <td>{pct(c.outside_fraction)}</td>

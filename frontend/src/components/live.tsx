@@ -110,14 +110,14 @@ export function LivePlots({
     if (show.elbow && elbowRef.current) {
       c.elbow = new Chart(
         elbowRef.current,
-        { title: "Elbow angle", yLabel: "°", yRange: [0, 150], height, series: [{ label: "Elbow angle", color: LINE.elbow }] },
+        { title: "Elbow angle", yLabel: "degrees", yRange: [0, 150], height, series: [{ label: "Elbow angle", color: LINE.elbow }] },
         empty,
       );
     }
     if (show.elev && elevRef.current) {
       c.elev = new Chart(
         elevRef.current,
-        { title: "Upper-arm elevation", yLabel: "°", yRange: [-10, 120], height, series: [{ label: "Elevation", color: LINE.elev }] },
+        { title: "Upper-arm elevation", yLabel: "degrees", yRange: [-10, 120], height, series: [{ label: "Upper-arm elevation", color: LINE.elev }] },
         empty,
       );
     }

@@ -63,8 +63,12 @@ export class IndicatorView {
   private lastKey = "";
   private lastPos = "";
   private trailPts: [number, number][] = [];
+  private readonly distance: boolean;
 
-  constructor(parent: HTMLElement, opts: { compact?: boolean; caption?: boolean } = {}) {
+  /** ``compact``: a small one (several devices on a screen); ``distance``: the caption says
+   * how far the shoulder is (not when the distance is shown beside it, or for the patient). */
+  constructor(parent: HTMLElement, opts: { compact?: boolean; caption?: boolean; distance?: boolean } = {}) {
+    this.distance = opts.distance ?? !opts.compact;
     this.root = document.createElement("div");
     this.root.className = "indicator" + (opts.compact ? " indicator--compact" : "");
     const svg = el("svg", {
@@ -79,8 +83,9 @@ export class IndicatorView {
     el("line", { x1: 0, y1: -96, x2: 0, y2: 96, class: "ind-axis" }, svg);
     el("circle", { cx: 0, cy: 0, r: R, class: "ind-tol" }, svg);
     el("circle", { cx: 0, cy: 0, r: 3, class: "ind-centre" }, svg);
-    const fwd = el("text", { x: 0, y: -86, class: "ind-fwd", "text-anchor": "middle" }, svg);
-    fwd.textContent = "forward";
+    // In the corner, out of the marker's reach (it stops at 88 from the centre).
+    const fwd = el("text", { x: -94, y: -86, class: "ind-fwd", "text-anchor": "start" }, svg);
+    fwd.textContent = "↑ forward";
     this.trail = el("polyline", { points: "", class: "ind-trail" }, svg);
     this.marker = el("g", { class: "ind-marker" }, svg);
     const ok = el("g", {}, this.marker);
@@ -147,13 +152,13 @@ export class IndicatorView {
         );
       }
       this.marker.style.display = "";
-      const cm = Math.hypot(inp.dx!, inp.dy!) * 100;
+      const cm = this.distance ? ` · ${(Math.hypot(inp.dx!, inp.dy!) * 100).toFixed(1)} cm` : "";
       sub =
         key === "ok"
-          ? `Shoulder in place · ${cm.toFixed(1)} cm`
+          ? `Shoulder in place${cm}`
           : key === "outside"
-            ? `Shoulder moved ${cm.toFixed(1)} cm`
-            : `Shoulder out too long · ${cm.toFixed(1)} cm`;
+            ? `Shoulder moved out${cm}`
+            : `Shoulder out too long${cm}`;
     } else {
       this.marker.style.display = "none";
       if (this.trailPts.length) {

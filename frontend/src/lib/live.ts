@@ -114,7 +114,7 @@ export class DeviceLive {
   }
 
   applyCycle(m: CycleMsg): void {
-    const idx = m.index ?? (this.cycles.at(-1)?.index ?? 0) + 1;
+    const idx = m.index ?? (this.cycles.at(-1)?.index ?? -1) + 1; // 0-based, as the service counts
     if (this.cycles.some((c) => c.index === idx)) return;
     this.cycles.push({ ...m, index: idx });
     if (this.cycles.length > 1000) this.cycles.splice(0, this.cycles.length - 1000);
@@ -236,11 +236,16 @@ export class LiveClient {
   /**
    * @param path e.g. "/api/ws/live?devices=a,b" or "/api/ws/overlay?token=..."
    * @param defaultDevice for a one-device feed (the overlay): every message goes to it
+   * @param onDenied the feed refused us (1008), or ended for good (see ``endsOnNormalClose``)
+   * @param endsOnNormalClose a normal close (1000) by the service is the end, not a break to
+   *   reconnect after: the overlay's feed closes so when its session ends, and the link is
+   *   refused from then on
    */
   constructor(
     private readonly path: string,
     private readonly defaultDevice = "",
     private readonly onDenied?: () => void,
+    private readonly endsOnNormalClose = false,
   ) {
     window.__rehabLive = this.stats;
     this.connect();
@@ -295,7 +300,7 @@ export class LiveClient {
     ws.onclose = (ev) => {
       this.ws = null;
       if (this.closed) return;
-      if (ev.code === 1008) {
+      if (ev.code === 1008 || (this.endsOnNormalClose && ev.code === 1000)) {
         this.connection = "denied";
         this.changed();
         this.onDenied?.();

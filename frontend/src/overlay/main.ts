@@ -37,10 +37,11 @@ const bannerIcon = h("div", "ov-banner__icon", "▲");
 bannerIcon.setAttribute("aria-hidden", "true");
 const bannerTitle = h("div", "ov-banner__title", "");
 const bannerText = h("div", "ov-banner__text", "");
-banner.append(bannerIcon, bannerTitle, bannerText);
+const bannerStatus = h("div", "ov-banner__status", "");
+banner.append(bannerIcon, bannerTitle, bannerText, bannerStatus);
 const corner = h("div", "ov-indicator");
 root.append(canvas, top, banner, corner);
-const indicator = new IndicatorView(corner, { caption: true });
+const indicator = new IndicatorView(corner, { caption: true, distance: false });
 
 const game = new Game();
 let pausedAt = 0;
@@ -52,23 +53,31 @@ function setPaused(p: boolean): void {
 }
 setPaused(false);
 
-function showBanner(kind: "pause" | "resume" | "error" | null, title = "", text = ""): void {
+function showBanner(kind: "pause" | "error" | "ended" | null, title = "", text = "", status = ""): void {
   if (!kind) {
     banner.hidden = true;
     return;
   }
   banner.hidden = false;
   banner.dataset.kind = kind;
-  bannerIcon.textContent = kind === "pause" ? "▲" : kind === "resume" ? "✓" : "!";
-  bannerTitle.textContent = title;
-  bannerText.textContent = text;
+  bannerIcon.textContent = kind === "pause" ? "▲" : kind === "ended" ? "✓" : "!";
+  if (bannerTitle.textContent !== title) bannerTitle.textContent = title;
+  if (bannerText.textContent !== text) bannerText.textContent = text;
+  if (bannerStatus.textContent !== status) bannerStatus.textContent = status;
+  bannerStatus.hidden = !status;
 }
 
 if (!token) {
   showBanner("error", "No link", "Open this page through the link from the therapist's dashboard.");
 } else {
-  const client = new LiveClient(`/api/ws/overlay?token=${encodeURIComponent(token)}`, DEVICE, () =>
-    showBanner("error", "This link has ended", "Ask your therapist for a new link."),
+  const client = new LiveClient(
+    `/api/ws/overlay?token=${encodeURIComponent(token)}`,
+    DEVICE,
+    () => {
+      setPaused(false);
+      showBanner("ended", "The session has ended", "Thank you! Ask your therapist for a new link to play again.");
+    },
+    true,
   );
   const dev = client.device(DEVICE);
   let lastCycles = 0;
@@ -111,22 +120,31 @@ function render(dev: DeviceLive, connection: string): void {
   const now = performance.now();
   const st = dev.status;
   if (game.paused) {
-    showBanner("pause", "Please stop", "Move your shoulder back to the starting position. The game goes on when it is back.");
-  } else if (resumedAt && now - resumedAt < 2500) {
-    showBanner("resume", "Well done", "Your shoulder is back. Carry on!");
-  } else if (banner.dataset.kind !== "error") {
+    // The verdict comes at the end of a cycle: the shoulder may be back already by then.
+    showBanner(
+      "pause",
+      "Please stop",
+      "Move your shoulder back to the starting position.",
+      dev.latest.state === "ok" ? "✓ It is back. Hold it there: the game goes on in a moment." : "The game goes on when it is back.",
+    );
+  } else if (banner.dataset.kind !== "error" && banner.dataset.kind !== "ended") {
     showBanner(null);
   }
+  // Back in the game: praise where the patient looks for what to do, not over the path.
+  const praise = !game.paused && resumedAt > 0 && now - resumedAt < 2500;
   score.textContent = `★ ${game.score}`;
   score.setAttribute("aria-label", `Score ${game.score}`);
   let hintText = "";
-  if (connection !== "open") hintText = "Connecting…";
+  if (praise) hintText = "✓ Well done, your shoulder is back. Carry on!";
+  else if (connection === "denied") hintText = "";
+  else if (connection !== "open") hintText = "Connecting…";
   else if (st && st.online === false) hintText = "The robot is not sending";
   else if (st && !st.heading_converged)
     hintText = `Getting ready: move your arm along the path · ${Math.round((st.convergence_progress ?? 0) * 100)} %`;
   else if (!game.rect) hintText = "Move your hand around the path";
   else if (!game.paused) hintText = "Collect the stars";
   if (hint.textContent !== hintText) hint.textContent = hintText;
+  hint.classList.toggle("ov-hint--good", praise);
   draw(dev);
 }
 

@@ -6,7 +6,26 @@ import { Viz3D } from "../components/Viz3D";
 import { api, errorText } from "../lib/api";
 import { dateTime, duration, num, warningAfter } from "../lib/format";
 import type { DeviceLive } from "../lib/live";
-import type { Cycle, Device, OverlayLink, Patient, Session } from "../lib/types";
+import type { Cycle, Device, NominalShoulder, OverlayLink, Patient, Session } from "../lib/types";
+
+/** Where the nominal shoulder came from, in plain words. */
+function nominalSource(nom: NominalShoulder): string {
+  const by = nom.set_by ? ` by ${nom.set_by}` : "";
+  switch (nom.source) {
+    case "auto":
+      return "set automatically";
+    case "estimate":
+      return `set here${by}`;
+    case "therapist":
+      return `set${by}`;
+    case "params":
+      return "taken from the patient's settings";
+    case "event":
+      return "set from the robot's shoulder reference";
+    default:
+      return "set";
+  }
+}
 
 function Calibration({
   dev,
@@ -63,7 +82,7 @@ function Calibration({
       <p>
         Heading converged{conf !== undefined && conf !== null ? ` (confidence ${Math.round(conf * 100)} %)` : ""}.{" "}
         {nom
-          ? `Nominal shoulder ${nom.source === "auto" ? "set automatically" : `set (${nom.source})`} at ${dateTime(nom.set_at)}.`
+          ? `Nominal shoulder ${nominalSource(nom)} at ${dateTime(nom.set_at)}.`
           : dev.latest.state
             ? "Nominal shoulder set automatically."
             : "Nominal shoulder not set yet."}

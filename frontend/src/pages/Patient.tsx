@@ -28,14 +28,14 @@ function Trends({ sessions, figures }: { sessions: Session[]; figures: Map<numbe
   const specs = useMemo(() => {
     const base = { x: "sessions" as const, xLabels: () => labels, height: 200 };
     const share: ChartSpec = { ...base, title: "Compensatory cycles", yLabel: "%", yRange: [0, 100], series: [{ label: "Compensatory cycles", color: LINE.comp, points: true }] };
-    const elbow: ChartSpec = { ...base, title: "Elbow range", yLabel: "°", yMin: 0, series: [{ label: "Elbow flexion range", color: LINE.elbow, points: true }] };
+    const elbow: ChartSpec = { ...base, title: "Elbow range", yLabel: "degrees", yMin: 0, series: [{ label: "Elbow flexion range", color: LINE.elbow, points: true }] };
     const shoulder: ChartSpec = {
       ...base,
       title: "Shoulder range",
-      yLabel: "°",
+      yLabel: "degrees",
       yMin: 0,
       series: [
-        { label: "Elevation range", color: LINE.elev, points: true },
+        { label: "Upper-arm elevation range", color: LINE.elev, points: true },
         { label: "Horizontal (azimuth) range", color: LINE.azim, points: true, dash: [6, 3] },
       ],
     };
@@ -54,9 +54,9 @@ function Trends({ sessions, figures }: { sessions: Session[]; figures: Map<numbe
   }
   return (
     <div class="plots plots--3">
-      <StaticChart name="trend-compensatory" caption="Compensatory-cycle share per session (%)" spec={specs.share} data={data.share} />
-      <StaticChart name="trend-elbow" caption="Elbow range of motion per session (°)" spec={specs.elbow} data={data.elbow} />
-      <StaticChart name="trend-shoulder" caption="Shoulder (upper-arm) range of motion per session (°)" spec={specs.shoulder} data={data.shoulder} />
+      <StaticChart name="trend-compensatory" caption="Compensatory cycles (% of the cycles)" spec={specs.share} data={data.share} />
+      <StaticChart name="trend-elbow" caption="Elbow range of motion (°)" spec={specs.elbow} data={data.elbow} />
+      <StaticChart name="trend-shoulder" caption="Shoulder range of motion (°)" spec={specs.shoulder} data={data.shoulder} />
     </div>
   );
 }

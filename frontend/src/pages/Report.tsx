@@ -38,7 +38,7 @@ export function ReportPage({ id }: { id: number }) {
   const maxOut = Number(report?.params?.max_outside_fraction ?? session?.params.max_outside_fraction ?? 0.2);
   const cycleList: Cycle[] = useMemo(() => {
     if (cycles && cycles.length) return cycles;
-    return (report?.cycles ?? []).map((c, i) => ({ ...c, index: c.index ?? i + 1 }));
+    return (report?.cycles ?? []).map((c, i) => ({ ...c, index: c.index ?? i }));
   }, [cycles, report]);
   const t0 = est?.t[0] ?? cycleList[0]?.start ?? 0;
 
@@ -55,7 +55,7 @@ export function ReportPage({ id }: { id: number }) {
         { label: "Tolerance", color: LINE.tol, dash: [6, 4], width: 1.5 },
       ],
     };
-    const elbow: ChartSpec = { title: "Elbow angle", yLabel: "°", yMin: 0, x: "seconds", height: 220, series: [{ label: "Elbow angle", color: LINE.elbow, width: 1.5 }] };
+    const elbow: ChartSpec = { title: "Elbow angle", yLabel: "degrees", yMin: 0, x: "seconds", height: 220, series: [{ label: "Elbow angle", color: LINE.elbow, width: 1.5 }] };
     const cyc: ChartSpec = {
       title: "Time outside per cycle",
       yLabel: "%",
@@ -122,7 +122,7 @@ export function ReportPage({ id }: { id: number }) {
 
       {reportError && <Alert kind="warn">{reportError}</Alert>}
 
-      <section class="card" aria-labelledby="exports-title">
+      <section class="card no-print" aria-labelledby="exports-title">
         <div class="card__head">
           <h2 id="exports-title">Export</h2>
           <div class="actions">
@@ -195,7 +195,7 @@ export function ReportPage({ id }: { id: number }) {
           <h2 id="cycles-title">Cycles</h2>
           <CycleCounts cycles={cycleList} />
         </div>
-        <CycleTable cycles={cycleList} t0={t0} caption="Cycles with their verdicts" />
+        <CycleTable cycles={cycleList} t0={t0} caption="Cycles with their verdicts" full />
       </section>
 
       <section class="card" aria-labelledby="quality-title">
