@@ -8,10 +8,12 @@ and an offline analysis of its recording produce identical files.
 from __future__ import annotations
 
 import csv
+import gc
 import io
 import json
 import math
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from itertools import islice
 from pathlib import Path
@@ -170,7 +172,7 @@ def _digits(q: np.ndarray, neg: np.ndarray, p: int) -> np.ndarray:
     return cells
 
 
-def estimate_lines(rows: dict[str, np.ndarray]) -> list[str]:
+def estimate_lines(rows: Mapping[str, np.ndarray]) -> list[str]:
     """Rows of ``estimates.csv`` (contract §6); empty cells where no value exists yet."""
     el, sh = rows["elbow"], rows["shoulder"]
     cols: list[_Column] = [
@@ -186,7 +188,7 @@ def estimate_lines(rows: dict[str, np.ndarray]) -> list[str]:
     return _lines(_EST_FMT, cols)
 
 
-def detail_lines(rows: dict[str, np.ndarray]) -> list[str]:
+def detail_lines(rows: Mapping[str, np.ndarray]) -> list[str]:
     m = np.concatenate(
         [
             rows["t"][:, None],
@@ -375,6 +377,23 @@ def decode_stream(
 
 
 _DECODE_BATCH = 64
+
+
+@contextmanager
+def gc_paused() -> Iterator[None]:
+    """The cyclic garbage collector off for one batch run (``rehab analyze``).
+
+    The pipeline makes no reference cycles worth collecting mid-run, but it holds tens of
+    thousands of live message objects that every full collection walks again (about a
+    sixth of the run). Not for the service: it pauses the whole process.
+    """
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
 
 
 def analyze(

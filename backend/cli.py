@@ -25,7 +25,7 @@ def _load_params(path: str | None) -> PipelineParams:
 
 
 def cmd_analyze(args: argparse.Namespace) -> int:
-    from backend.analysis import analyze
+    from backend.analysis import analyze, gc_paused
 
     rec = Path(args.recording)
     if not rec.is_file():
@@ -33,7 +33,8 @@ def cmd_analyze(args: argparse.Namespace) -> int:
         return 2
     params = _load_params(args.params)
     t0 = time.perf_counter()
-    run, rep = analyze(rec, params, args.out, device=args.device, progress=sys.stderr.isatty())
+    with gc_paused():
+        run, rep = analyze(rec, params, args.out, device=args.device, progress=sys.stderr.isatty())
     dt = time.perf_counter() - t0
     s = rep["summary"]
     q = rep["data_quality"]

@@ -44,6 +44,14 @@ class RowBuffer:
         self.a[self.hi : self.hi + n] = rows
         self.hi += n
 
+    def grow(self, n: int) -> FloatArray:
+        """Append ``n`` uninitialised rows and return them as a view to fill in place (one
+        copy less than building a block and appending it)."""
+        if self.hi + n > self.a.shape[0]:
+            self._reserve(n)
+        self.hi += n
+        return self.a[self.hi - n : self.hi]
+
     def push(self, row: Sequence[float]) -> None:
         """Append one row."""
         if self.hi >= self.a.shape[0]:

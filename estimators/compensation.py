@@ -110,6 +110,9 @@ def displacement(shoulder: ArrayLike, nominal: ArrayLike, norm: Norm = "horizont
     return out
 
 
+_ONE_CODE = {c: np.array([c], dtype=np.int8) for c in (UNKNOWN, OK, OUTSIDE, WARNING)}
+
+
 def state_name(code: int) -> str | None:
     """Contract name of a state code; ``None`` for ``UNKNOWN``."""
     return STATE_NAMES[code] if 0 <= code < len(STATE_NAMES) else None
@@ -141,10 +144,12 @@ class Indicator:
     always hold the latest known state.
     """
 
-    _SMALL = 8  # chunks up to this size take the scalar path (same arithmetic, less overhead)
+    _SMALL = 16  # chunks up to this size take the scalar path (same arithmetic, less overhead)
 
     def __init__(self, params: CompensationParams | None = None) -> None:
         self.params = params if params is not None else CompensationParams()
+        self._tol_m = self.params.tolerance_m
+        self._hold = self.params.max_hold_s
         self._t_last = -math.inf  # time of the last sample seen
         self._run_start: float | None = None  # start of the ongoing outside run
         self._last_known = -9  # code of the last known sample (-9: none yet)
@@ -195,12 +200,17 @@ class Indicator:
             cs = getattr(b, "cycle_start", None)
             if cs is not None:
                 self.cycle_completed(float(cs), float(b), getattr(b, "detected_at", None))
-        if tolerated_s is None and self.params.warning_after_s is not None:
+        if tolerated_s is None:
             tolerated_s = self.params.warning_after_s
         if isinstance(t, list) and isinstance(displacement, list) and len(t) <= self._SMALL:
+            # floats: no numpy calls
             if len(displacement) != len(t):
                 raise ValueError("t and displacement must both have shape (N,)")
-            return self._update_small(t, displacement, tolerated_s)  # floats: no numpy calls
+            if len(t) == 1:  # the live case; copying a ready array is twice as fast as np.array
+                changes: list[tuple[float, str]] = []
+                code = self._step(t[0], displacement[0], tolerated_s, changes)
+                return _ONE_CODE[code].copy(), changes
+            return self._update_small(t, displacement, tolerated_s)
         tt = np.asarray(t, dtype=np.float64)
         dd = np.asarray(displacement, dtype=np.float64)
         if tt.shape != dd.shape or tt.ndim != 1:
@@ -224,38 +234,31 @@ class Indicator:
 
     # -- scalar path (small chunks) -----------------------------------------------------------
 
+    def _step(
+        self, ti: float, di: float, override: float | None, changes: list[tuple[float, str]]
+    ) -> int:
+        """One sample's code (the rule :meth:`_update_vector` applies to a chunk)."""
+        if self._sched_t and self._sched_t[0] <= ti:
+            self._advance_schedule(ti)
+        if di > self._tol_m:  # False for NaN
+            run = self._run_start
+            if run is None or ti - self._t_last > self._hold:
+                run = self._run_start = ti
+            code = WARNING if ti - run > (self._tol if override is None else override) else OUTSIDE
+        else:
+            self._run_start = None
+            code = OK if di == di else UNKNOWN
+        self._t_last = ti
+        if code != self._last_known and code != UNKNOWN:
+            self._last_known = code
+            changes.append((ti, STATE_NAMES[code]))
+        return code
+
     def _update_small(
         self, ts: list[float], ds: list[float], override: float | None
     ) -> tuple[CodeArray, list[tuple[float, str]]]:
-        tol_m = self.params.tolerance_m
-        hold = self.params.max_hold_s
-        codes: list[int] = []
         changes: list[tuple[float, str]] = []
-        t_last = self._t_last
-        run = self._run_start
-        last_known = self._last_known
-        for ti, di in zip(ts, ds, strict=True):
-            if self._sched_t and self._sched_t[0] <= ti:
-                self._advance_schedule(ti)
-            tol = self._tol if override is None else override
-            if di != di:  # NaN
-                code = UNKNOWN
-                run = None
-            elif di > tol_m:
-                if run is None or ti - t_last > hold:
-                    run = ti
-                code = WARNING if ti - run > tol else OUTSIDE
-            else:
-                code = OK
-                run = None
-            if code != UNKNOWN and code != last_known:
-                changes.append((ti, STATE_NAMES[code]))
-                last_known = code
-            codes.append(code)
-            t_last = ti
-        self._t_last = t_last
-        self._run_start = run
-        self._last_known = last_known
+        codes = [self._step(ti, di, override, changes) for ti, di in zip(ts, ds, strict=True)]
         return np.array(codes, dtype=np.int8), changes
 
     # -- vector path ------------------------------------------------------------------------
@@ -337,10 +340,11 @@ class EpisodeTracker:
     by the call that sees the sample ending the run (or by :meth:`flush`).
     """
 
-    _SMALL = 8  # chunks up to this size take the scalar path
+    _SMALL = 16  # chunks up to this size take the scalar path
 
     def __init__(self, params: CompensationParams | None = None) -> None:
         self.params = params if params is not None else CompensationParams()
+        self._hold = self.params.max_hold_s
         self._t_last = -math.inf
         self._start: float | None = None  # ongoing run
         self._warned = False
@@ -351,21 +355,34 @@ class EpisodeTracker:
     ) -> list[Episode]:
         """``t`` (N,) s, ``codes`` (N,) indicator codes, ``displacement`` (N,) m (optional,
         for the peak). Returns the episodes that ended in this chunk."""
+        episodes: list[Episode] = []
         if isinstance(t, list) and isinstance(displacement, list) and len(t) <= self._SMALL:
-            cl: list[int] = np.asarray(codes).tolist()
+            cl: list[int] = (codes if isinstance(codes, np.ndarray) else np.asarray(codes)).tolist()
             if not len(cl) == len(displacement) == len(t):
                 raise ValueError("t and codes must both have shape (N,)")
-            return self._update_small(t, cl, displacement)  # floats: no numpy calls
+            if len(t) == 1:  # the live case; mostly no run is open and none starts
+                if cl[0] >= OUTSIDE or self._start is not None:
+                    self._step(t[0], cl[0], displacement[0], episodes)
+                else:
+                    self._t_last = t[0]
+            else:
+                for ti, ci, di in zip(t, cl, displacement, strict=True):
+                    self._step(ti, ci, di, episodes)
+            return episodes  # floats: no numpy calls
         tt = np.asarray(t, dtype=np.float64)
         cc = np.asarray(codes, dtype=np.int8)
         n = tt.shape[0]
         if cc.shape != (n,):
             raise ValueError("t and codes must both have shape (N,)")
         dd = np.full(n, np.nan) if displacement is None else np.asarray(displacement, np.float64)
+        if dd.shape != (n,):
+            raise ValueError("displacement must have shape (N,)")
         if n == 0:
-            return []
+            return episodes
         if n <= self._SMALL:
-            return self._update_small(tt.tolist(), cc.tolist(), dd.tolist())
+            for ti, ci, di in zip(tt.tolist(), cc.tolist(), dd.tolist(), strict=True):
+                self._step(ti, ci, di, episodes)
+            return episodes
         hold = self.params.max_hold_s
         out_mask = cc >= OUTSIDE
         prev_t = np.empty(n)
@@ -378,7 +395,6 @@ class EpisodeTracker:
         # run boundaries: a run ends before sample i if i-1 was outside and (i not outside or gap)
         ends = np.flatnonzero(prev_out & (~out_mask | gap))
         starts = np.flatnonzero(out_mask & (~prev_out | gap))
-        episodes: list[Episode] = []
         # walk the (few) run starts/ends in order
         si = 0
         pos = 0
@@ -403,28 +419,27 @@ class EpisodeTracker:
         self._t_last = float(tt[-1])
         return episodes
 
-    def _update_small(self, ts: list[float], cs: list[int], ds: list[float]) -> list[Episode]:
-        """Sample by sample, the same decisions as the vector path (small chunks)."""
-        hold = self.params.max_hold_s
-        episodes: list[Episode] = []
+    def _step(self, ti: float, ci: int, di: float, episodes: list[Episode]) -> None:
+        """One sample, the same decisions as the vector path."""
+        if ci >= OUTSIDE:
+            if self._start is not None and ti - self._t_last > self._hold:
+                self._end_run(ti, episodes)
+            if self._start is None:
+                self._open(ti)
+            if ci == WARNING:
+                self._warned = True
+            if di == di and di > self._peak:
+                self._peak = di
+        elif self._start is not None:
+            self._end_run(ti, episodes)
+        self._t_last = ti
+
+    def _end_run(self, ti: float, episodes: list[Episode]) -> None:
+        """Close the ongoing run before the sample at ``ti``."""
         t_last = self._t_last
-        for ti, ci, di in zip(ts, cs, ds, strict=True):
-            out = ci >= OUTSIDE
-            gap = ti - t_last > hold
-            if self._start is not None and (not out or gap):
-                ep = self._close(t_last + min(ti - t_last, hold))
-                if ep is not None:
-                    episodes.append(ep)
-            if out:
-                if self._start is None:
-                    self._open(ti)
-                if ci == WARNING:
-                    self._warned = True
-                if di == di and di > self._peak:
-                    self._peak = di
-            t_last = ti
-        self._t_last = t_last
-        return episodes
+        ep = self._close(t_last + min(ti - t_last, self._hold))
+        if ep is not None:
+            episodes.append(ep)
 
     def flush(self) -> list[Episode]:
         """End of data: close an ongoing run at the last sample's time."""

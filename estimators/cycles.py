@@ -29,8 +29,9 @@ from __future__ import annotations
 
 import bisect
 import math
+from collections import deque
 from dataclasses import dataclass
-from typing import Literal, TypeAlias
+from typing import Any, Literal, TypeAlias
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -171,6 +172,10 @@ class _MovingWindow:
     ``t >= t[i] - centre_window_s`` (including ``i``) comes from exclusive prefix sums
     accumulated sequentially since the start, so the result does not depend on chunking.
     :meth:`update` (vectorised) and :meth:`step` (one sample) do the same arithmetic.
+
+    The history rows live in :class:`RowBuffer` arrays for :meth:`update` and in deques of
+    float tuples for :meth:`step` (a numpy row write or read costs more than the whole step);
+    they move between the two forms only when the caller switches between the two.
     """
 
     def __init__(self, p: CycleParams, width: int) -> None:
@@ -181,12 +186,39 @@ class _MovingWindow:
         self._pos = RowBuffer(3)  # t, x, y back to the last sample at/before t - still_window_s
         self._h = RowBuffer(width + 2)  # t, exclusive prefix sums of [moving, moving * vals]
         self._total = [0.0] * (width + 1)
+        # while stepping, the same rows as float tuples: the last position at or before
+        # t - still_window_s (None: none yet), the later ones, and the prefix sums
+        self._stepping = False
+        self._anchor: tuple[float, ...] | None = None
+        self._pos_q: deque[tuple[float, ...]] = deque()
+        self._h_q: deque[tuple[float, ...]] = deque()
+
+    def _to_queues(self) -> None:
+        self._stepping = True
+        self._anchor = None  # the first step finds it among the rows
+        self._pos_q = deque(map(tuple, self._pos.view().tolist()))
+        self._h_q = deque(map(tuple, self._h.view().tolist()))
+        self._pos.drop(len(self._pos))
+        self._h.drop(len(self._h))
+
+    def _to_buffers(self) -> None:
+        self._stepping = False
+        pos = list(self._pos_q)
+        if self._anchor is not None:
+            pos.insert(0, self._anchor)
+        for buf, rows in ((self._pos, pos), (self._h, list(self._h_q))):
+            if rows:
+                buf.append(np.array(rows, dtype=np.float64))
+        self._pos_q.clear()
+        self._h_q.clear()
 
     def update(
         self, t: FloatArray, xy: FloatArray, vals: FloatArray
     ) -> tuple[FloatArray, FloatArray]:
         """``t`` (n,), ``xy`` (n,2), ``vals`` (n, width) -> means (n, width) (NaN where the
         window has no moving sample) and moving-sample counts (n,)."""
+        if self._stepping:
+            self._to_buffers()
         n = t.shape[0]
         rows = np.empty((n, 3))
         rows[:, 0] = t
@@ -218,39 +250,89 @@ class _MovingWindow:
         self._h.drop(int(np.searchsorted(ht, t[-1] - self._w, side="left")))
         return means, counts
 
-    def step(self, t: float, x: float, y: float, vals: list[float]) -> tuple[list[float], float]:
-        """One sample (same arithmetic as :meth:`update`): means (width,), count."""
-        pos = self._pos
-        pos.push((t, x, y))
-        a = pos.a
-        lo = pos.lo
+    def _moving(self, t: float, x: float, y: float) -> float:
+        """Queue one sample's position; 1.0 if it is moving, else 0.0."""
+        if not self._stepping:
+            self._to_queues()
+        pos = self._pos_q
+        pos.append((t, x, y))
         lim = t - self._lag
-        while pos.hi - lo >= 2 and a.item(lo + 1, 0) <= lim:
-            lo += 1
-        pos.lo = lo
+        a = self._anchor
+        while pos and pos[0][0] <= lim:
+            a = pos.popleft()
+        self._anchor = a
+        if a is not None:
+            dx = x - a[1]
+            dy = y - a[2]
+            if dx * dx + dy * dy > self._r2:
+                return 1.0
+        return 0.0
+
+    def _window_start(self, t: float, tot: list[float]) -> tuple[float, ...]:
+        """Queue the sums before sample ``t``; the sums before the window's first sample."""
+        hist = self._h_q
+        hist.append((t, *tot))
+        lim = t - self._w
+        while hist[0][0] < lim:  # stops at the row just appended at the latest
+            hist.popleft()
+        return hist[0]
+
+    def step(
+        self, t: float, x: float, y: float, vals: tuple[float, ...]
+    ) -> tuple[list[float], float]:
+        """One sample (same arithmetic as :meth:`update`): means (width,), count."""
+        m = self._moving(t, x, y)
+        tot = self._total
+        pk = self._window_start(t, tot)
+        new = [tot[0] + m]
+        for c in range(self._width):  # plain loops: cheaper than comprehensions here
+            new.append(tot[c + 1] + vals[c] * m)
+        self._total = new
+        count = new[0] - pk[1]
+        means = [math.nan] * self._width
+        if count > 0.0:
+            for c in range(self._width):
+                means[c] = (new[c + 1] - pk[c + 2]) / count
+        return means, count
+
+    def step_xy(self, t: float, x: float, y: float) -> tuple[float, float]:
+        """:meth:`step` with ``vals = (x, y)``, helpers written out (the path detector's
+        centre, for every live sample): the mean x and y."""
+        if not self._stepping:
+            self._to_queues()
+        pos = self._pos_q
+        pos.append((t, x, y))
+        lim = t - self._lag
+        a: tuple[float, ...] | None
+        if pos[0][0] <= lim:
+            a = pos.popleft()
+            while pos and pos[0][0] <= lim:
+                a = pos.popleft()
+            self._anchor = a
+        else:
+            a = self._anchor
         m = 0.0
-        if a.item(lo, 0) <= lim:
-            dx = x - a.item(lo, 1)
-            dy = y - a.item(lo, 2)
+        if a is not None:
+            dx = x - a[1]
+            dy = y - a[2]
             if dx * dx + dy * dy > self._r2:
                 m = 1.0
-        tot = self._total
-        new = [tot[0] + m]
-        new.extend([tot[c + 1] + vals[c] * m for c in range(self._width)])
-        hb = self._h
-        hb.push((t, *tot))
-        self._total = new
-        ha = hb.a
-        lo = hb.lo
+        hist = self._h_q
+        c0, s0, s1 = self._total
+        hist.append((t, c0, s0, s1))
         lim = t - self._w
-        while ha.item(lo, 0) < lim:
-            lo += 1
-        hb.lo = lo
-        pk = ha[lo].tolist()
-        count = new[0] - pk[1]
+        pk = hist[0]
+        while pk[0] < lim:
+            hist.popleft()
+            pk = hist[0]
+        c0 += m
+        s0 += x * m
+        s1 += y * m
+        self._total = [c0, s0, s1]
+        count = c0 - pk[1]
         if count > 0.0:
-            return [(new[c + 1] - pk[c + 2]) / count for c in range(self._width)], count
-        return [math.nan] * self._width, count
+            return (s0 - pk[2]) / count, (s1 - pk[3]) / count
+        return math.nan, math.nan
 
 
 _BLOCK = 128  # the vectorised state machines look this many samples ahead at a time
@@ -319,14 +401,6 @@ class _Detector:
         raise NotImplementedError
 
 
-def _wrap(step: float) -> float:
-    if step > math.pi:
-        return step - TWO_PI
-    if step <= -math.pi:
-        return step + TWO_PI
-    return step
-
-
 class _PathDetector(_Detector):
     """Phase of the wrist around the running centre of its horizontal path.
 
@@ -375,8 +449,10 @@ class _PathDetector(_Detector):
             self._restart(t1, p1)
 
     def step(self, t: float, x: float, y: float, out: list[Boundary]) -> None:
+        # the phase step's wrap to (-pi, pi], anchor() and _level() written out: this runs
+        # for every live sample
         p = self.p
-        (cx, cy), _ = self._win.step(t, x, y, [x, y])
+        cx, cy = self._win.step_xy(t, x, y)
         vx = x - cx
         vy = y - cy
         if not vx * vx + vy * vy >= self._r2min:
@@ -388,16 +464,23 @@ class _PathDetector(_Detector):
             self._restart(t, 0.0)
             return
         t0, phi0, big0 = prev
-        st = _wrap(phi - phi0)
+        st = phi - phi0
+        if st > math.pi:
+            st -= TWO_PI
+        elif st <= -math.pi:
+            st += TWO_PI
         big = big0 + st
         self._prev = (t, phi, big)
-        if abs(st) > p.max_phase_step_rad or t - t0 > p.max_gap_s:
+        last_b = self.last_b
+        if (
+            abs(st) > p.max_phase_step_rad
+            or t - t0 > p.max_gap_s
+            or t > (self.ref_t if last_b is None else last_b) + p.max_cycle_s
+        ):
             self._restart(t, big)
             return
-        if t > self.anchor() + p.max_cycle_s:
-            self._restart(t, big)
-            return
-        if self._dir == 0:
+        d = self._dir
+        if d == 0:
             up = big - self._ref_phi
             if up >= TWO_PI:
                 self._dir = 1
@@ -406,8 +489,8 @@ class _PathDetector(_Detector):
             else:
                 return
         else:
-            level = self._level()
-            if not (big >= level if self._dir > 0 else big <= level):
+            level = self._ref_phi + d * TWO_PI * (self._turns + 1)
+            if not (big >= level if d > 0 else big <= level):
                 return
         self._crossing(t0, big0, t, big, out)
 
@@ -549,7 +632,7 @@ class _ReachDetector(_Detector):
 
     def step(self, t: float, x: float, y: float, out: list[Boundary]) -> None:
         p = self.p
-        (mx, my, exx, eyy, exy), count = self._win.step(t, x, y, [x, y, x * x, y * y, x * y])
+        (mx, my, exx, eyy, exy), count = self._win.step(t, x, y, (x, y, x * x, y * y, x * y))
         ux, uy, nrm = self._axis(mx, my, exx, eyy, exy)
         if not (nrm > 0.0 and count >= 3.0):
             return
@@ -808,22 +891,21 @@ class CycleSegmenter:
     def push(self, t: float, x: float, y: float) -> list[float]:
         """:meth:`update` for one sample (time s, wrist x and y m), without numpy calls:
         the live pipeline feeds one row at a time."""
-        out: list[float] = []
+        out: list[Any] = []  # Boundary objects (list[Any]: the detector's list is returned)
         det = self._detector
         if det is not None:
             if self._switch_t is None or t < self._switch_t:
-                if det.origin is None:
-                    det.origin = (x, y)
-                ox, oy = det.origin
-                found: list[Boundary] = []
-                det.step(t, x - ox, y - oy, found)
-                for b in found:
-                    out.append(b)
-                    self._last_b = b
+                origin = det.origin
+                if origin is None:
+                    origin = det.origin = (x, y)
+                det.step(t, x - origin[0], y - origin[1], out)
+                if out:
+                    self._last_b = out[-1]
             else:
                 self._detector = None
         seen = self._data_t
-        self._data_t = max(seen, t)
+        if t > seen:  # max(seen, t), NaN included
+            self._data_t = t
         if self._events and self._events[0] <= self._data_t:
             self._due_events(seen, out)
         return out

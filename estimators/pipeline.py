@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import bisect
 import math
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, TypeAlias
 
@@ -103,11 +104,37 @@ class Event:
 # ------------------------------------------------------------------------------ outputs
 
 
+class RowTable(Mapping[str, Any]):
+    """The rows of one poll as a read-only mapping ``ROW_COLUMNS`` → arrays, backed by one
+    (n, ``_NCOL``) matrix: a column is sliced when asked for, so a consumer pays only for
+    the columns it reads."""
+
+    __slots__ = ("m", "state")
+
+    def __init__(self, m: Array, state: Idx) -> None:
+        self.m = m
+        self.state = state
+
+    def __getitem__(self, name: str) -> Any:
+        if name == "state":
+            return self.state
+        if name == "heading_converged":
+            return self.m[:, _COL[name]] > 0.5
+        a, w = _SPAN[name]
+        return self.m[:, a] if w == 1 else self.m[:, a : a + w]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(ROW_COLUMNS)
+
+    def __len__(self) -> int:
+        return len(ROW_COLUMNS)
+
+
 @dataclass
 class Output:
     """New rows (``ROW_COLUMNS``, arrays of equal length) and feedback since the last poll."""
 
-    rows: dict[str, Array] = field(default_factory=dict)
+    rows: Mapping[str, Array] = field(default_factory=dict)
     feedback: list[dict[str, Any]] = field(default_factory=list)
     cycles: list[CycleVerdict] = field(default_factory=list)
     episodes: list[Episode] = field(default_factory=list)  # tolerated-time rule (§3.4, §5)
@@ -201,6 +228,8 @@ class _ImuStage:
     # specific force in the sensor frame (3), paper method's eq. 1–2 acceleration (3), the
     # gyro in frame A and its backward difference (3 + 3: predict q_IA past the newest sample)
     T, SEG, Q, QS, ACC, V, W, DW, WIDTH = 0, 1, 2, 6, 10, 13, 16, 19, 22
+    # :meth:`at` spells these out (attribute look-ups cost more than its arithmetic)
+    assert (SEG, Q, W, DW) == (1, 2, 16, 19)
 
     def __init__(self, p: PipelineParams) -> None:
         self.p = p
@@ -218,7 +247,7 @@ class _ImuStage:
         self.gyro_lp: LowPass | None = None
         self.gyro_zi: Array | None = None
         self.gyro_prev: Array | None = None
-        self.w_prev: tuple[float, Array] | None = None  # last (t, ω_A) of this segment
+        self.w_prev: tuple[float, list[float]] | None = None  # last (t, ω_A) of this segment
         self.buf = RowBuffer(self.WIDTH)
         self.tl: list[float] = []  # the buffer's times as floats (bisect for single rows)
 
@@ -238,6 +267,7 @@ class _ImuStage:
         self.w_prev = None
 
     def process(self, t: Array, gyr: Array, acc: Array, q: Quality) -> None:
+        """Samples ``t`` (n,) s, ``gyr`` (n, 3) rad/s, ``acc`` (n, 3) m/s²."""
         if self.ts is None:
             self.probe.append((t, gyr, acc))
             if sum(len(c[0]) for c in self.probe) < self.p.rate_probe_samples:
@@ -262,7 +292,7 @@ class _ImuStage:
                     break
                 prev = x
             else:
-                self.last = (tl[-1], gyr[-1].copy(), acc[-1].copy())
+                self.last = (tl[-1], gyr[-1], acc[-1])  # message arrays are never written
                 self._run(t, gyr, acc, tl)
                 return
         # gaps: bridge short ones by interpolation, reset on long ones
@@ -304,8 +334,14 @@ class _ImuStage:
         assert self.vqf is not None
         out = self.vqf.updateBatch(np.ascontiguousarray(gyr), np.ascontiguousarray(acc))
         q_is = out["quat6D"]
-        q_ia = q_is if self.identity_mount else quat.mul(q_is, self.mount)
-        v = np.zeros((n, 3))
+        tl = t.tolist() if tl is None else tl
+        # filled in place: a message's few rows cost more in numpy calls than in arithmetic
+        b = self.buf.grow(n)
+        b[:, self.T] = t
+        b[:, self.SEG] = float(self.seg)
+        b[:, self.Q : self.Q + 4] = q_is if self.identity_mount else quat.mul(q_is, self.mount)
+        b[:, self.QS : self.QS + 4] = q_is
+        b[:, self.ACC : self.ACC + 3] = acc
         if self.p.method == "paper":
             assert self.gyro_lp is not None and self.ts is not None
             if self.gyro_zi is None or self.gyro_prev is None:
@@ -315,17 +351,28 @@ class _ImuStage:
             prev = np.concatenate((self.gyro_prev[None], gf[:-1]))
             gdot = (gf - prev) / self.ts  # backward difference of the low-passed gyro (eq. 1)
             self.gyro_prev = gf[-1].copy()
-            v = kin.inertial_acceleration(q_is, kin.joint_specific_force(acc, gyr, gdot, self.r))
+            b[:, self.V : self.V + 3] = kin.inertial_acceleration(
+                q_is, kin.joint_specific_force(acc, gyr, gdot, self.r)
+            )
+        else:
+            b[:, self.V : self.V + 3] = 0.0
         w_a = gyr if self.identity_mount else quat.rotate(self.unmount, gyr)
+        b[:, self.W : self.W + 3] = w_a
         # angular acceleration: backward difference, 0 at a segment's first sample
-        t0, w0 = self.w_prev if self.w_prev is not None else (float(t[0]) - 1.0, w_a[0])
-        dw = np.diff(np.concatenate((w0[None], w_a)), axis=0)
-        dw /= np.diff(np.concatenate(([t0], t)))[:, None]
-        self.w_prev = (float(t[-1]), w_a[-1].copy())
-        # one concatenate: cheaper than assigning eight column blocks of a few rows
-        seg = np.full((n, 1), float(self.seg))
-        self.buf.append(np.concatenate((t[:, None], seg, q_ia, q_is, acc, v, w_a, dw), axis=1))
-        self.tl.extend(t.tolist() if tl is None else tl)
+        if self.w_prev is not None and len(self.buf) > n:
+            # the previous sample is the buffer's row before these (same arithmetic)
+            a, hi = self.buf.a, self.buf.hi
+            prev = a[hi - n - 1 : hi - 1]
+            b[:, self.DW : self.DW + 3] = (
+                b[:, self.W : self.W + 3] - prev[:, self.W : self.W + 3]
+            ) / (b[:, self.T : self.T + 1] - prev[:, self.T : self.T + 1])
+        else:
+            t0, w0 = self.w_prev if self.w_prev is not None else (tl[0] - 1.0, w_a[0])
+            prev_w = np.concatenate((np.asarray(w0, dtype=np.float64)[None], w_a[:-1]))
+            prev_t = np.concatenate(([t0], t[:-1]))
+            b[:, self.DW : self.DW + 3] = (w_a - prev_w) / (t - prev_t)[:, None]
+        self.w_prev = (tl[-1], w_a[-1].tolist())
+        self.tl.extend(tl)
 
     def trim(self, t_keep: float) -> None:
         i = max(0, bisect.bisect_left(self.tl, t_keep) - 2)
@@ -429,24 +476,22 @@ class _ImuStage:
         if n < 2:
             return False, NAN4, 0.0
         if s > asof:
-            j = bisect.bisect_right(tl, asof) - 1
-            r = self.buf.a[self.buf.lo + max(j, 0)].tolist()
-            q = rows.predict(
-                rows.SCALAR, tuple(r[self.Q : self.Q + 4]), tuple(r[self.W : self.W + 3]),
-                tuple(r[self.DW : self.DW + 3]), s - tl[max(j, 0)],
-            )
-            return j >= 0, q, r[self.SEG]
+            # the newest sample at or before asof (usually the newest of all)
+            j = n - 1 if asof >= tl[-1] else bisect.bisect_right(tl, asof) - 1
+            jc = j if j > 0 else 0
+            r = self.buf.a[self.buf.lo + jc].tolist()
+            q = rows.predict(rows.SCALAR, r[2:6], r[16:19], r[19:22], s - tl[jc])
+            return j >= 0, q, r[1]
         i1 = bisect.bisect_left(tl, s)
         i1c = min(max(i1, 1), n - 1)
         i0 = i1c - 1
         a, base = self.buf.a, self.buf.lo
-        r0 = a[base + i0, : self.Q + 4].tolist()
-        r1 = a[base + i1c, : self.Q + 4].tolist()
-        ok = 0 < i1 < n and r0[self.SEG] == r1[self.SEG]
+        r0 = a[base + i0, :6].tolist()
+        r1 = a[base + i1c, :6].tolist()
+        ok = 0 < i1 < n and r0[1] == r1[1]
         t0, t1 = tl[i0], tl[i1c]
         w = rows.SCALAR.clip((s - t0) / (t1 - t0), 0.0, 1.0)
-        q = rows.nlerp(rows.SCALAR, tuple(r0[self.Q :]), tuple(r1[self.Q :]), w)
-        return ok, q, r1[self.SEG]
+        return ok, rows.nlerp(rows.SCALAR, r0[2:], r1[2:], w), r1[1]
 
     def interp_channels(self, s: Array) -> tuple[Idx, Array]:
         """Fusion channels linearly interpolated at ``s`` (no anti-alias: the paper's way)."""
@@ -675,6 +720,7 @@ class Pipeline:
         self._imu = _ImuStage(p)
         self._robot = _RobotStage(p)
         self._grid = _GridStage(p)
+        # messages fed since the last poll, with their arrays as lists where already made
         self._imu_pending: list[tuple[Array, Array, Array]] = []
         self._robot_pending: list[tuple[Array, Array, Array, Array | None]] = []
         self._imu_frontier = -math.inf  # last IMU stamp fed
@@ -727,8 +773,9 @@ class Pipeline:
         self._judge = CycleJudge(self._cp)
         self._episodes = EpisodeTracker(self._cp)
         self._xc_prev_t = -math.inf
-        self._xc_prev: tuple[float, ...] = (0.0, 0.0, 0.0)
+        self._xc_prev: Sequence[float] = (0.0, 0.0, 0.0)
         self._grid_trimmed = -math.inf
+        self._next_trim = -math.inf  # robot stamp from which the next poll trims buffers
         # a row uses the latest heading update the grid is sure to have reached by the time
         # the row became ready (two grid steps and the anti-alias half-width back)
         self._snap_lag = 2.0 * self._grid.dt + self._grid.half + 1e-9
@@ -737,7 +784,12 @@ class Pipeline:
 
     def feed(self, msg: Any) -> bool:
         """Take one decoded message (IMU, robot or event). Returns False if rejected."""
-        if hasattr(msg, "gyr"):
+        kind = _KINDS.get(type(msg))
+        if kind is None:  # duck-typed by attributes, cached per slotted type (hasattr is slow)
+            kind = _kind_of(msg)
+            if hasattr(type(msg), "__slots__"):
+                _KINDS[type(msg)] = kind
+        if kind == "imu":
             return self.feed_imu(
                 msg.t,
                 msg.gyr,
@@ -745,7 +797,7 @@ class Pipeline:
                 getattr(msg, "seq", None),
                 getattr(msg, "segment", "upperarm"),
             )
-        if hasattr(msg, "proximal"):
+        if kind == "robot":
             return self.feed_robot(
                 msg.t,
                 msg.wrist,
@@ -753,7 +805,7 @@ class Pipeline:
                 getattr(msg, "elbow", None),
                 getattr(msg, "seq", None),
             )
-        if hasattr(msg, "type") and hasattr(msg, "t"):
+        if kind == "event":
             return self.feed_event(float(msg.t), str(msg.type), getattr(msg, "point", None))
         # optional streams (camera) are valid but not used by the method: counted, not rejected
         self.quality.ignored[type(msg).__name__] = (
@@ -769,12 +821,13 @@ class Pipeline:
                 self.quality.ignored.get(f"imu_{segment}", 0) + 1
             )
             return False
+        # (pending messages hold no Python lists: in a batch they would be many thousand
+        # objects for the garbage collector to walk again and again)
         if not self._imu_stream.admit(float(t[0]), seq, self.quality):
             return False
-        self._imu_stream.last_t = float(t[-1])
+        self._imu_stream.last_t = self._imu_frontier = float(t[-1])
         self._imu_pending.append((t, gyr, acc))
         self.quality.imu_samples += len(t)
-        self._imu_frontier = float(t[-1])
         self._decide()
         return True
 
@@ -786,17 +839,20 @@ class Pipeline:
         elbow: Array | None = None,
         seq: int | None = None,
     ) -> bool:
-        if not self._robot_stream.admit(float(t[0]), seq, self.quality):
+        tl = t.tolist()
+        if not self._robot_stream.admit(tl[0], seq, self.quality):
             return False
         # pure Python: per-message numpy calls would cost more than the whole check
-        if any(x * x + y * y + z * z <= 1e-12 for x, y, z in (wrist - proximal).tolist()):
-            self.quality.reject("coincident_cuffs")
-            return False
-        self._robot_stream.last_t = float(t[-1])
+        wl, pl = wrist.tolist(), proximal.tolist()
+        for w, p in zip(wl, pl, strict=True):
+            x, y, z = w[0] - p[0], w[1] - p[1], w[2] - p[2]
+            if x * x + y * y + z * z <= 1e-12:
+                self.quality.reject("coincident_cuffs")
+                return False
+        self._robot_stream.last_t = self._robot_frontier = tl[-1]
         self._robot_pending.append((t, wrist, proximal, elbow))
-        self._row_t.extend(t.tolist())
-        self.quality.robot_samples += len(t)
-        self._robot_frontier = float(t[-1])
+        self._row_t.extend(tl)
+        self.quality.robot_samples += len(tl)
         self._decide()
         return True
 
@@ -930,7 +986,11 @@ class Pipeline:
             self._grid.advance(self._imu, self._robot, until)
             self._run_heading()
         out = self._rows()
-        self._trim()
+        # forgetting old data changes no result, so it is done about once a second of data
+        # (per poll it would cost as much as the row itself)
+        if not self._robot_frontier < self._next_trim:
+            self._trim()
+            self._next_trim = self._robot_frontier + 1.0
         return out
 
     def finish(self) -> Output:
@@ -994,23 +1054,29 @@ class Pipeline:
         self._snap_t.extend(s[0] for s in snaps)
 
     def _robot_samples(
-        self, t: Array, wrist: Array, prox: Array, elbow: Array | None, off: float
+        self,
+        t: Array,
+        wrist: Array,
+        prox: Array,
+        elbow: Array | None,
+        off: float,
     ) -> None:
         """Elbow and forearm axis from the cuffs (eq. 13), or the robot's own elbow."""
         n = len(t)
         lp = self.params.cuff_to_elbow_m
         if n <= _SMALL:
             M = rows.SCALAR
+            tl, wl, pl = t.tolist(), wrist.tolist(), prox.tolist()
             el = None if elbow is None else elbow.tolist()
             pes: list[tuple[float, ...]] = []
-            for j, (w, p) in enumerate(zip(wrist.tolist(), prox.tolist(), strict=True)):
+            for j, (w, p) in enumerate(zip(wl, pl, strict=True)):
                 xc = rows.unit(M, (w[0] - p[0], w[1] - p[1], w[2] - p[2]))
                 pe = (p[0] - lp * xc[0], p[1] - lp * xc[1], p[2] - lp * xc[2])
                 if el is not None:
                     pe = tuple(e if math.isfinite(e) else v for e, v in zip(el[j], pe, strict=True))
                 self._rowbuf.push((*w, *pe, *xc))
                 pes.append(pe)
-            self._robot.append([x - off for x in t.tolist()], pes, self.quality)
+            self._robot.append([x - off for x in tl] if off else tl, pes, self.quality)
             return
         M = rows.VECTOR
         xc_v = rows.unit(M, tuple(wrist[:, i] - prox[:, i] for i in range(3)))
@@ -1027,14 +1093,13 @@ class Pipeline:
         One row at a time in Python floats when few are due (the live case), as arrays
         otherwise; :mod:`estimators.rows` makes both bit-identical."""
         lo, hi = self._n_done, self._n_decided
-        out = Output()
         if hi <= lo:
-            return out
+            return Output()
         self._n_done = hi
         n = hi - lo
         t = self._row_t[lo:hi]
         dec = self._decisions[lo:hi]
-        block = self._rowbuf.view()[:n].copy()
+        block = self._rowbuf.view()[:n]  # valid until the next append (none before return)
         self._rowbuf.drop(n)
         # compensation rule (§3.4); segment first: a completed cycle sets the tolerated
         # duration from its end on
@@ -1057,30 +1122,24 @@ class Pipeline:
                 m = self._rows_vector(np.array(t), dec, block)
             tt, disp = m[:, 0], m[:, _DISP]
             boundaries = self._segmenter.update(tt, block[:, 0:3])
-        cols = {name: m[:, a] if w == 1 else m[:, a : a + w] for name, a, w in _LAYOUT}
-        cols["heading_converged"] = m[:, _COL["heading_converged"]] > 0.5
         codes, changes = self._indicator.update(tt, disp, None, boundaries)
         verdicts = self._judge.update(tt, codes, boundaries, disp)
         episodes = self._episodes.update(tt, codes, disp)
-        cols["state"] = codes
         fb: list[dict[str, Any]] = [{"t": tc, "type": "state", "state": st} for tc, st in changes]
-        fb.extend(
-            {
-                "type": "cycle",
-                "start": v.start,
-                "end": v.end,
-                "outside_fraction": v.outside_fraction,
-                "compensatory": v.compensatory,
-            }
-            for v in verdicts
-            if v.compensatory is not None
-        )
-        fb.sort(key=lambda f: f.get("t", f.get("end", 0.0)))
-        out.rows = cols
-        out.feedback = fb
-        out.cycles = list(verdicts)
-        out.episodes = episodes
-        return out
+        if verdicts:
+            fb.extend(
+                {
+                    "type": "cycle",
+                    "start": v.start,
+                    "end": v.end,
+                    "outside_fraction": v.outside_fraction,
+                    "compensatory": v.compensatory,
+                }
+                for v in verdicts
+                if v.compensatory is not None
+            )
+            fb.sort(key=lambda f: f.get("t", f.get("end", 0.0)))
+        return Output(RowTable(m, codes), fb, list(verdicts), episodes)
 
     def _row(self, t: float, dec: tuple[bool, int, float], r: list[float]) -> list[float]:
         """One row in Python floats, in ``_LAYOUT`` order (state filled in later)."""
@@ -1098,17 +1157,15 @@ class Pipeline:
         ok = ok_p and with_imu and ok_n and seg_n == seg_p
         h = rows.heading(M, s, ok, snap, seg_p)
         q_ra, x_now, x_a = rows.upper_arm(M, h.delta, h.good, q_n, q_p)
-        wrist, p_e, x_c = tuple(r[0:3]), tuple(r[3:6]), tuple(r[6:9])
+        wrist, p_e, x_c = r[0:3], r[3:6], r[6:9]
         prev_t, prev = self._xc_prev_t, self._xc_prev
         self._xc_prev_t, self._xc_prev = t, x_c
         angle = self._angle(M, x_now, x_a, x_c, prev, t - prev_t, latency)
-        la = self._arm_length(t, r[3:6], k)
+        la = self._arm_length(t, p_e, k)
         sh = rows.shoulder(p_e, x_a, la)
         nom = self._nominal_at(t, sh, h.good, k)
         disp = rows.displacement(M, sh, nom, p.displacement_norm)
-        conv = rows.angle_deg(
-            M, rows.unit(M, tuple(e - c for e, c in zip(p_e, nom, strict=True))), x_c
-        )
+        conv = rows.conventional_angle(M, p_e, nom, x_c)
         elev, azim = rows.elevation_azimuth(M, x_now)
         if not with_imu:
             self.quality.rows_without_imu += 1
@@ -1118,9 +1175,7 @@ class Pipeline:
             h.confidence, elev, azim, *nom, conv, *wrist, la,
         ]  # fmt: skip
 
-    def _rows_vector(
-        self, t: Array, dec: list[tuple[bool, int, float]], block: Array
-    ) -> Array:
+    def _rows_vector(self, t: Array, dec: list[tuple[bool, int, float]], block: Array) -> Array:
         """:meth:`_row` for many rows at once, as arrays: (n, ``_NCOL``)."""
         M = rows.VECTOR
         p = self.params
@@ -1130,9 +1185,12 @@ class Pipeline:
         spec = [d[1] for d in dec]
         asof = np.array([d[2] for d in dec])
         if self._snaps:
-            si = np.searchsorted(
-                np.array(self._snap_t), np.minimum(s, asof) - self._snap_lag, side="right"
-            ) - 1
+            si = (
+                np.searchsorted(
+                    np.array(self._snap_t), np.minimum(s, asof) - self._snap_lag, side="right"
+                )
+                - 1
+            )
             sn = np.array(self._snaps)[np.maximum(si, 0)]
             sn[si < 0] = np.nan
         else:
@@ -1165,9 +1223,7 @@ class Pipeline:
         nom_a = np.array(nom_rows).reshape(n, 3)
         nom = tuple(nom_a[:, i] for i in range(3))
         disp = rows.displacement(M, sh, nom, p.displacement_norm)
-        conv = rows.angle_deg(
-            M, rows.unit(M, tuple(e - c for e, c in zip(p_e, nom, strict=True))), x_c
-        )
+        conv = rows.conventional_angle(M, p_e, nom, x_c)
         elev, azim = rows.elevation_azimuth(M, x_now)
         self.quality.rows_without_imu += int(np.count_nonzero(~with_imu))
         return np.column_stack(
@@ -1180,10 +1236,10 @@ class Pipeline:
     def _angle(
         self,
         M: Any,
-        x_now: tuple[Any, ...],
-        x_pair: tuple[Any, ...],
-        x_c: tuple[Any, ...],
-        prev: tuple[Any, ...],
+        x_now: Sequence[Any],
+        x_pair: Sequence[Any],
+        x_c: Sequence[Any],
+        prev: Sequence[Any],
         dt: Any,
         latency: Any,
     ) -> Any:
@@ -1284,6 +1340,19 @@ class Pipeline:
             self._n_done = 0
 
 
+_KINDS: dict[type, str] = {}
+
+
+def _kind_of(msg: Any) -> str:
+    if hasattr(msg, "gyr"):
+        return "imu"
+    if hasattr(msg, "proximal"):
+        return "robot"
+    if hasattr(msg, "type") and hasattr(msg, "t"):
+        return "event"
+    return "other"
+
+
 _SMALL = 16  # up to this many rows or samples per call take the Python-float path
 NAN3 = (math.nan,) * 3
 NAN4 = (math.nan,) * 4
@@ -1294,5 +1363,6 @@ for _name in ROW_COLUMNS:
     _w = _WIDTHS.get(_name, 1)
     _LAYOUT.append((_name, sum(w for _, _, w in _LAYOUT), _w))
 _COL = {name: a for name, a, _ in _LAYOUT}
+_SPAN = {name: (a, w) for name, a, w in _LAYOUT}
 _NCOL = sum(w for _, _, w in _LAYOUT)
 _DISP = _COL["shoulder_displacement_m"]

@@ -20,7 +20,7 @@ So a row has bit-identical values however the rows are batched (tested).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -121,7 +121,7 @@ SCALAR: Any = _Scalar
 VECTOR: Any = _Vector
 
 
-def nlerp(M: Any, a: tuple[Any, ...], b: tuple[Any, ...], s: Any) -> tuple[Any, ...]:
+def nlerp(M: Any, a: Sequence[Any], b: Sequence[Any], s: Any) -> tuple[Any, ...]:
     """Normalised linear interpolation of unit quaternions ``a``, ``b`` (w, x, y, z), shortest
     arc, ``s`` in [0, 1]. Between IMU samples it differs from slerp far below sensor noise."""
     aw, ax, ay, az = a
@@ -137,7 +137,7 @@ def nlerp(M: Any, a: tuple[Any, ...], b: tuple[Any, ...], s: Any) -> tuple[Any, 
 
 
 def predict(
-    M: Any, q: tuple[Any, ...], w: tuple[Any, ...], dw: tuple[Any, ...], dt: Any
+    M: Any, q: Sequence[Any], w: Sequence[Any], dw: Sequence[Any], dt: Any
 ) -> tuple[Any, ...]:
     """The orientation ``dt`` s after unit quaternion ``q`` (w, x, y, z) at the body rate
     ``w`` (rad/s, in the rotated frame) changing at ``dw`` (rad/s²): ``q ⊗ (1, θ/2)`` with
@@ -169,7 +169,7 @@ def heading(
     M: Any,
     s: Any,
     ok: Any,
-    snap: tuple[Any, ...],
+    snap: Sequence[Any],
     seg: Any,
 ) -> Heading:
     """The heading at row time ``s`` (s) from the latest update snapshot
@@ -192,7 +192,7 @@ def heading(
 
 
 def upper_arm(
-    M: Any, delta: Any, good: Any, q_now: tuple[Any, ...], q_pair: tuple[Any, ...]
+    M: Any, delta: Any, good: Any, q_now: Sequence[Any], q_pair: Sequence[Any]
 ) -> tuple[tuple[Any, ...], tuple[Any, ...], tuple[Any, ...]]:
     """``q_RA = Rz(δ) ⊗ q_IA`` (eqs. 9–10) now, its x axis now, and the x axis ``x_A`` at the
     instant the robot measured the elbow (``q_pair``); NaN where not ``good``."""
@@ -219,21 +219,21 @@ def _x_axis(w: Any, x: Any, y: Any, z: Any) -> tuple[Any, Any, Any]:
     return 1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)
 
 
-def unit(M: Any, v: tuple[Any, ...]) -> tuple[Any, ...]:
+def unit(M: Any, v: Sequence[Any]) -> tuple[Any, ...]:
     x, y, z = v
     n = M.sqrt((x * x + y * y) + z * z)
     n = M.where(n > 0.0, n, NAN)
     return x / n, y / n, z / n
 
 
-def angle_deg(M: Any, a: tuple[Any, ...], b: tuple[Any, ...]) -> Any:
+def angle_deg(M: Any, a: Sequence[Any], b: Sequence[Any]) -> Any:
     """Angle between unit vectors, ° (eq. 11 for x_A and x_C)."""
     c = (a[0] * b[0] + a[1] * b[1]) + a[2] * b[2]
     return M.acos(M.clip(c, -1.0, 1.0)) * RAD2DEG
 
 
 def extrapolate(
-    M: Any, x_c: tuple[Any, ...], prev: tuple[Any, ...], dt: Any, latency: Any
+    M: Any, x_c: Sequence[Any], prev: Sequence[Any], dt: Any, latency: Any
 ) -> tuple[Any, ...]:
     """The forearm axis carried ``latency`` s forward along its last robot step (``dt`` s)."""
     step = M.where((dt > 0.0) & (dt < 0.2), latency / M.where(dt > 0.0, dt, 1.0), 0.0)
@@ -241,7 +241,7 @@ def extrapolate(
 
 
 def conventional_angle(
-    M: Any, p_e: tuple[Any, ...], nominal: tuple[Any, ...], x_c: tuple[Any, ...]
+    M: Any, p_e: Sequence[Any], nominal: Sequence[Any], x_c: Sequence[Any]
 ) -> Any:
     """The robot-only baseline's elbow angle, °: the shoulder assumed fixed at the nominal
     point, ``x_A = normalize(p_E − p_S,nom)``; NaN without a nominal shoulder."""
@@ -249,18 +249,18 @@ def conventional_angle(
     return angle_deg(M, x_a, x_c)
 
 
-def elevation_azimuth(M: Any, x: tuple[Any, ...]) -> tuple[Any, Any]:
+def elevation_azimuth(M: Any, x: Sequence[Any]) -> tuple[Any, Any]:
     """Upper-arm elevation (0° hanging, 90° horizontal) and azimuth (0° = +y, 90° = +x), °."""
     elev = M.acos(M.clip(-x[2], -1.0, 1.0)) * RAD2DEG
     return elev, M.atan2(x[0], x[1]) * RAD2DEG
 
 
-def shoulder(p_e: tuple[Any, ...], x_a: tuple[Any, ...], la: Any) -> tuple[Any, ...]:
+def shoulder(p_e: Sequence[Any], x_a: Sequence[Any], la: Any) -> tuple[Any, ...]:
     """Shoulder (eq. 12): ``p_S = p_E − l_A · x_A``."""
     return tuple(e - la * a for e, a in zip(p_e, x_a, strict=True))
 
 
-def displacement(M: Any, s: tuple[Any, ...], nom: tuple[Any, ...], norm: str) -> Any:
+def displacement(M: Any, s: Sequence[Any], nom: Sequence[Any], norm: str) -> Any:
     """Distance from the nominal shoulder: horizontal (x, y) or 3D, m."""
     dx, dy, dz = s[0] - nom[0], s[1] - nom[1], s[2] - nom[2]
     sq = dx * dx + dy * dy

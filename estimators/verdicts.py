@@ -24,6 +24,9 @@ from numpy.typing import ArrayLike
 from estimators.buffers import RowBuffer
 from estimators.compensation import CompensationParams, FloatArray
 
+_SMALL = 16  # list inputs up to this many rows take the Python-float path
+_FLUSH = 256  # ... whose rows reach the numpy buffer this many at a time (or to be judged)
+
 
 @dataclass(frozen=True, slots=True)
 class CycleVerdict:
@@ -84,6 +87,9 @@ class CycleJudge:
         self.max_cycle_s = max_cycle_s
         self.history_s = history_s
         self._buf = RowBuffer(3)  # t, code, displacement
+        # columns t, code, displacement of the rows of small calls as floats, moved into
+        # _buf in blocks: a numpy row write costs more than the rest of a live call
+        self._cols: tuple[list[float], list[float], list[float]] = ([], [], [])
         self._data_t = -math.inf
         self._last_b: float | None = None
         self._pending: list[tuple[float, float, str]] = []  # (start, end, source)
@@ -95,26 +101,41 @@ class CycleJudge:
         boundaries: Sequence[float] = (),
         displacement: ArrayLike | None = None,
     ) -> list[CycleVerdict]:
-        if isinstance(t, list) and len(t) <= 8:
-            # the live case: a row or two as floats (numpy's per-call cost would dominate)
+        if isinstance(t, list) and len(t) <= _SMALL:
+            # the live case: a row or a few as floats (numpy's per-call cost would dominate)
             n = len(t)
-            cl: list[float] = np.asarray(codes).tolist()
-            if len(cl) != n:
-                raise ValueError("t and codes must both have shape (N,)")
-            dl: list[float] = (
-                [math.nan] * n if displacement is None else np.asarray(displacement).tolist()
-            )
-            for row in zip(t, cl, dl, strict=True):
-                self._buf.push(row)
+            cl: list[float] = (
+                codes if isinstance(codes, np.ndarray) else np.asarray(codes)
+            ).tolist()
+            dl: list[float]
+            if displacement is None:
+                dl = [math.nan] * n
+            elif isinstance(displacement, list):
+                dl = displacement
+            else:
+                dl = np.asarray(displacement).tolist()
+            if len(cl) != n or len(dl) != n:
+                raise ValueError("t, codes and displacement must have shape (N,)")
+            col_t, col_c, col_d = self._cols
+            col_t.extend(t)
+            col_c.extend(cl)
+            col_d.extend(dl)
             if n:
                 self._data_t = float(t[-1])
-            return self._after_rows(boundaries)
+            for b in boundaries:
+                self._add_boundary(b)
+            if (self._pending and self._pending[0][1] <= self._data_t) or len(col_t) >= _FLUSH:
+                return self._after_rows()
+            return []
         tt = np.asarray(t, dtype=np.float64)
         n = tt.shape[0]
         cc = np.asarray(codes)
         if tt.ndim != 1 or cc.shape != (n,):
             raise ValueError("t and codes must both have shape (N,)")
+        for b in boundaries:
+            self._add_boundary(b)
         if n:
+            self._flush()
             rows = np.empty((n, 3))
             rows[:, 0] = tt
             rows[:, 1] = cc
@@ -124,11 +145,17 @@ class CycleJudge:
                 rows[:, 2] = np.asarray(displacement, dtype=np.float64)
             self._buf.append(rows)
             self._data_t = float(tt[-1])
-        return self._after_rows(boundaries)
+        return self._after_rows()
 
-    def _after_rows(self, boundaries: Sequence[float]) -> list[CycleVerdict]:
-        for b in boundaries:
-            self._add_boundary(b)
+    def _flush(self) -> None:
+        """Move the rows gathered as floats into the buffer."""
+        if self._cols[0]:
+            self._buf.append(np.array(self._cols, dtype=np.float64).T)
+            self._cols = ([], [], [])
+
+    def _after_rows(self) -> list[CycleVerdict]:
+        """Judge the cycles the data has reached, then forget rows no longer needed."""
+        self._flush()
         verdicts: list[CycleVerdict] = []
         if self._pending and self._pending[0][1] <= self._data_t:
             view = self._buf.view()

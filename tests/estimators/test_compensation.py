@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from estimators.compensation import (
@@ -381,6 +381,49 @@ def test_judge_respects_cycle_start_and_max_cycle():
     assert judge.update(t[:0], codes[:0], [10.0]) == []
     later = judge.update(t[100:300], codes[100:300])
     assert [(x.start, x.end) for x in later] == [(3.0, 4.5), (4.5, 10.0)]
+
+
+# ----------------------------------------------------------------------------- live paths
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    displacement_streams(),
+    st.lists(st.booleans(), min_size=1, max_size=20),
+    st.sampled_from([None, 0.3]),
+)
+@example((*_profile(), [3.0, 7.5, 15.0], [1] * 500), [True], None)  # the live schedule
+def test_rows_as_the_pipeline_passes_them_equal_one_array_call(stream, as_list, warn):
+    """The Python-float paths (``t`` and displacement as lists of one row or a few, codes as
+    the indicator returned them, like ``Pipeline._rows``), mixed with array chunks, give
+    what one call on the whole arrays gives; every call gets its own codes array."""
+    t, d, ends, sizes = stream
+    params = CompensationParams(warning_after_s=warn)
+    bounds = [Boundary(e, s) for s, e in itertools.pairwise([t[0] - 5.0, *ends])]
+    ind, judge, tr = Indicator(params), CycleJudge(params), EpisodeTracker(params)
+    whole_codes, whole_changes = ind.update(t, d, boundaries=bounds)
+    whole = (whole_changes, judge.update(t, whole_codes, bounds, d), tr.update(t, whole_codes, d))
+    ind, judge, tr = Indicator(params), CycleJudge(params), EpisodeTracker(params)
+    codes, changes, verdicts, eps, a = [], [], [], [], 0
+    for k, s in enumerate([*sizes, t.size]):
+        b = min(a + s, t.size)
+        if a >= b:
+            break
+        # a boundary goes with the chunk that holds the first sample at or after it
+        due = [x for x in bounds if (a == 0 or t[a - 1] < x) and x <= t[b - 1]]
+        tt, dd = (
+            (t[a:b].tolist(), d[a:b].tolist()) if as_list[k % len(as_list)] else (t[a:b], d[a:b])
+        )
+        c, ch = ind.update(tt, dd, boundaries=due)
+        assert c.dtype == np.int8 and c.shape == (b - a,)
+        changes += ch
+        verdicts += judge.update(tt, c, due, dd)
+        eps += tr.update(tt, c, dd)
+        codes.append(c.copy())
+        c[:] = 7  # the caller owns the array: later results must not see this
+        a = b
+    np.testing.assert_array_equal(np.concatenate(codes), whole_codes)
+    assert repr((changes, verdicts, eps)) == repr(whole)  # repr: NaN fields compare equal
 
 
 # ----------------------------------------------------------------------------- whole chain

@@ -14,10 +14,10 @@ import pickle
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from estimators.cycles import Boundary, CycleParams, CycleSegmenter
+from estimators.cycles import Boundary, CycleParams, CycleSegmenter, _MovingWindow
 
 FS = 25.0
 
@@ -380,6 +380,91 @@ _SIZES = st.one_of(
 def test_any_chunking_is_bit_identical(mode, sizes):
     t, wrist = (_LOOP if mode == "path" else _REACH)[:2]
     assert key(run(CycleSegmenter(CycleParams(mode=mode)), t, wrist, sizes)) == _FULL[mode]
+
+
+# live fast paths: `push` (one sample, no numpy) and the moving window's per-sample form
+# (deques, moved to and from the arrays when a caller switches paths) against `update`
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    st.sampled_from(["path", "reach", "auto"]),
+    st.lists(st.tuples(st.booleans(), st.integers(1, 40)), min_size=1, max_size=60),
+)
+def test_push_and_update_in_any_mix_are_bit_identical(mode, plan):
+    t, wrist = (_REACH if mode == "reach" else _LOOP)[:2]
+    events = [t[len(t) // 2] + 0.013, t[len(t) // 2] + 6.0]  # auto: path, then events
+
+    def make():
+        seg = CycleSegmenter(CycleParams(mode=mode))
+        for e in events:
+            seg.add_event(e)
+        return seg
+
+    ref, seg = make(), make()
+    expected = [b for i in range(t.size) for b in ref.update(t[i : i + 1], wrist[i : i + 1])]
+    got, i = [], 0
+    for pushed, s in [*plan, (True, t.size)]:
+        if pushed:
+            for j in range(i, min(i + s, t.size)):
+                got += seg.push(float(t[j]), float(wrist[j, 0]), float(wrist[j, 1]))
+        else:
+            got += seg.update(t[i : i + s], wrist[i : i + s])
+        i += s
+    assert key(got) == key(expected)
+    if mode == "auto":
+        assert {b.source for b in expected} == {"path", "event"}
+    else:
+        assert key(got) == _FULL[mode]
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.lists(st.sampled_from([0.04, 0.04, 0.04, 0.01, 0.13, 0.45, 2.5]), min_size=1, max_size=400),
+    st.lists(st.tuples(st.sampled_from(["step", "xy", "update"]), st.integers(1, 30)), min_size=4),
+    st.sampled_from([2, 5]),
+    st.integers(0, 2**32 - 1),
+)
+@example(  # the switch to arrays needs the position from before the gap
+    [0.04] * 20 + [0.45] + [0.04] * 20,
+    [("step", 23), ("update", 3), ("xy", 23), ("update", 1)],
+    2,
+    1,
+)
+def test_moving_window_step_equals_update(dts, plan, width, seed):
+    """Means and counts of the per-sample forms equal one vectorised call, bit for bit,
+    whatever the mix (irregular times, gaps longer than the window, NaN where nothing moved)."""
+    p = CycleParams(centre_window_s=2.0, still_window_s=0.3)
+    t = 5.0 + np.cumsum(dts)
+    rng = np.random.default_rng(seed)
+    xy = np.cumsum(rng.normal(0.0, 0.02, (t.size, 2)) * rng.integers(0, 2, (t.size, 1)), axis=0)
+    x, y = xy[:, 0], xy[:, 1]
+    vals = xy if width == 2 else np.c_[x, y, x * x, y * y, x * y]
+    ref_means, ref_counts = _MovingWindow(p, width).update(t, xy, vals)
+    win = _MovingWindow(p, width)
+    means, counts, i = [], [], 0
+    for how, s in [*plan, ("update", t.size)]:
+        lo, hi = i, min(i + s, t.size)
+        i = hi
+        if how == "update":
+            if lo < hi:
+                m, c = win.update(t[lo:hi], xy[lo:hi], vals[lo:hi])
+                means += m.tolist()
+                counts += c.tolist()
+            continue
+        for j in range(lo, hi):
+            tj, xj, yj = float(t[j]), float(x[j]), float(y[j])
+            if how == "xy" and width == 2:
+                means.append(list(win.step_xy(tj, xj, yj)))
+                counts.append(math.nan)  # step_xy gives no count
+            else:
+                mj, cj = win.step(tj, xj, yj, tuple(vals[j].tolist()))
+                means.append(mj)
+                counts.append(cj)
+    np.testing.assert_array_equal(np.array(means), ref_means)
+    got_c = np.array(counts)
+    known = ~np.isnan(got_c)
+    np.testing.assert_array_equal(got_c[known], ref_counts[known])
 
 
 # ----------------------------------------------------------------------------- API
