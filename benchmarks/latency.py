@@ -161,6 +161,19 @@ def proc_sample(pid: int) -> tuple[float, int]:
     return cpu, rss
 
 
+def thread_cpu(pid: int) -> dict[int, tuple[str, float]]:
+    """(name, CPU seconds used so far) of each thread of a process, by thread id."""
+    out: dict[int, tuple[str, float]] = {}
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            name, rest = (task / "stat").read_text().split(" (", 1)[1].rsplit(")", 1)
+        except (OSError, ValueError):  # the thread ended
+            continue
+        stat = rest.split()
+        out[int(task.name)] = (name, (int(stat[11]) + int(stat[12])) / CLK_TCK)
+    return out
+
+
 def latencies(sent: list[list[tuple[float, float]]], recv: dict[str, list[tuple[float, float]]],
               t_start: float, warmup: float) -> tuple[np.ndarray, int, int]:
     """Latencies (s) of the steady state, and (robot samples sent, rows received) overall."""
@@ -247,6 +260,7 @@ def run(n: int, duration: float, sessions: bool = True, verbose: bool = True) ->
                 assert r.status_code == 201, r.text
         time.sleep(1.0)
         cpu0, rss0 = proc_sample(service.pid)
+        threads0 = thread_cpu(service.pid)
         say(f"idle service: {rss0 / 2**20:.0f} MiB; streaming {duration:.0f} s")
         t_start = time.time()
         pub.stdin.write("go\n")
@@ -260,6 +274,14 @@ def run(n: int, duration: float, sessions: bool = True, verbose: bool = True) ->
             peak = max(peak, rss)
         wall = time.time() - t_start
         cpu1, rss1 = proc_sample(service.pid)
+        threads1 = thread_cpu(service.pid)
+        # the event loop's thread (the pipelines, ingest, outputs): the one that saturates
+        used = {
+            tid: (name, cpu - threads0.get(tid, (name, 0.0))[1])
+            for tid, (name, cpu) in threads1.items()
+        }
+        main_cpu = used.get(service.pid, ("", 0.0))[1]
+        busiest = sorted(used.items(), key=lambda kv: -kv[1][1])[:6]
         time.sleep(2.0)  # the last estimates
         sub.stdin.write("stop\n")
         sub.stdin.flush()
@@ -289,6 +311,10 @@ def run(n: int, duration: float, sessions: bool = True, verbose: bool = True) ->
             "latency_websocket_ms": stats_ms(wl),
             "service_cpu_percent": round(100 * (cpu1 - cpu0) / wall, 1),
             "service_cpu_percent_steady": None if cpu_steady is None else round(100 * cpu_steady, 1),
+            "service_main_thread_cpu_percent": round(100 * main_cpu / wall, 1),
+            "service_threads_cpu_percent": {
+                f"{name} {tid}": round(100 * cpu / wall, 1) for tid, (name, cpu) in busiest
+            },
             "service_rss_idle_mib": round(rss0 / 2**20, 1),
             "service_rss_end_mib": round(rss1 / 2**20, 1),
             "service_rss_peak_mib": round(peak / 2**20, 1),
@@ -347,6 +373,7 @@ def report(r: dict[str, Any]) -> str:
         f"{r['estimates_received_zenoh']}/{r['robot_samples']}; latency to Zenoh p50 "
         f"{z['p50']} ms, p99 {z['p99']} ms (max {z['max']}); to WebSocket p50 {w['p50']} ms, "
         f"p99 {w['p99']} ms; service CPU {r['service_cpu_percent']} % "
+        f"(main thread {r['service_main_thread_cpu_percent']} %) "
         f"({r['cpu_per_device_percent']} %/device), RSS {r['service_rss_idle_mib']} → "
         f"{r['service_rss_end_mib']} MiB ({r['memory_per_device_mib']} MiB/device)"
         f" {'OK' if r['meets_target'] else 'FAILS p99 <= 50 ms'}"

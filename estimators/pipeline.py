@@ -109,19 +109,22 @@ class RowTable(Mapping[str, Any]):
     (n, ``_NCOL``) matrix: a column is sliced when asked for, so a consumer pays only for
     the columns it reads."""
 
-    __slots__ = ("m", "state")
+    __slots__ = ("_cols", "m")
 
     def __init__(self, m: Array, state: Idx) -> None:
         self.m = m
-        self.state = state
+        self._cols: dict[str, Any] = {"state": state}  # made once (several consumers read)
 
     def __getitem__(self, name: str) -> Any:
-        if name == "state":
-            return self.state
-        if name == "heading_converged":
-            return self.m[:, _COL[name]] > 0.5
-        a, w = _SPAN[name]
-        return self.m[:, a] if w == 1 else self.m[:, a : a + w]
+        col = self._cols.get(name)
+        if col is None:
+            if name == "heading_converged":
+                col = self.m[:, _COL[name]] > 0.5
+            else:
+                a, w = _SPAN[name]
+                col = self.m[:, a] if w == 1 else self.m[:, a : a + w]
+            self._cols[name] = col
+        return col
 
     def __iter__(self) -> Iterator[str]:
         return iter(ROW_COLUMNS)

@@ -47,27 +47,31 @@ OVERLAY_COLUMNS = (
 _OVERLAY_FLOATS = OVERLAY_COLUMNS[:-1]
 # pipeline state code (-1 none yet, 0 ok, 1 outside, 2 warning) + 1 → its name
 _STATE_NAMES = np.array([None, "ok", "outside", "warning"], dtype=object)
+_STATE_LIST: list[str | None] = _STATE_NAMES.tolist()
+# Below this many rows a block's columns are Python lists, above numpy arrays: orjson writes
+# the same text for both (NaN as null), and for a live poll's row or two a few tolist()
+# calls cost a third of building and slicing one array; per value, arrays are cheaper.
+LIST_ROWS = 64
+
+Column = list[float] | NDArray[np.float64]
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class Block:
-    """Rows of one or more polls as the feeds send them.
-
-    The float columns are the rows of one C-contiguous array: one numpy call builds it,
-    and orjson writes it without a Python float per value (NaN as null). Per-column lists
-    were a large part of the live loop's cost per poll.
-    """
+    """Rows of one or more polls as the feeds send them, built once per poll and
+    serialised once per send (without a Python check per value: orjson writes NaN as
+    null). Treated as immutable."""
 
     names: tuple[str, ...]
-    values: NDArray[np.float64]  # (len(names), rows)
+    values: list[Column]  # one per name: lists (few rows) or float64 arrays
     state: list[str | None]
-    converged: NDArray[np.int8] | None = None  # heading_converged 0/1, if a column
+    converged: list[int] | NDArray[np.int8] | None = None  # heading_converged 0/1, if a column
 
     def columns(self, upto: int | None = None) -> dict[str, Any]:
         """Column name → values, for orjson with ``OPT_SERIALIZE_NUMPY``; ``upto``: only the
         first float columns (the contract's, from a display block)."""
-        n = len(self.names) if upto is None else upto
-        cols: dict[str, Any] = dict(zip(self.names[:n], self.values[:n], strict=True))
+        names = self.names if upto is None else self.names[:upto]
+        cols: dict[str, Any] = dict(zip(names, self.values, strict=False))  # upto: the first
         if self.converged is not None:
             cols["heading_converged"] = self.converged
         cols["state"] = self.state
@@ -76,31 +80,59 @@ class Block:
 
 def estimate_block(rows: Mapping[str, NDArray[Any]], display: bool) -> Block:
     """Contract §7 columns and, if ``display``, the dashboard's (contract first)."""
-    parts = [
-        rows["t"][None], rows["elbow"].T, rows["shoulder"].T, rows["elbow_angle_deg"][None],
-        rows["heading_offset_deg"][None], rows["shoulder_displacement_m"][None],
-    ]
-    if display:
-        parts += [
-            rows["upper_arm_elevation_deg"][None], rows["upper_arm_azimuth_deg"][None],
-            rows["heading_confidence"][None], rows["nominal_shoulder"].T, rows["wrist"].T,
+    t = rows["t"]
+    if len(t) < LIST_ROWS:
+        values: list[Column] = [
+            t.tolist(), *rows["elbow"].T.tolist(), *rows["shoulder"].T.tolist(),
+            rows["elbow_angle_deg"].tolist(), rows["heading_offset_deg"].tolist(),
+            rows["shoulder_displacement_m"].tolist(),
         ]
+        if display:
+            values += [
+                rows["upper_arm_elevation_deg"].tolist(), rows["upper_arm_azimuth_deg"].tolist(),
+                rows["heading_confidence"].tolist(), *rows["nominal_shoulder"].T.tolist(),
+                *rows["wrist"].T.tolist(),
+            ]
+        converged: list[int] | NDArray[np.int8] = (
+            rows["heading_converged"].astype(np.int8).tolist()
+        )
+    else:
+        parts = [
+            t[None], rows["elbow"].T, rows["shoulder"].T, rows["elbow_angle_deg"][None],
+            rows["heading_offset_deg"][None], rows["shoulder_displacement_m"][None],
+        ]
+        if display:
+            parts += [
+                rows["upper_arm_elevation_deg"][None], rows["upper_arm_azimuth_deg"][None],
+                rows["heading_confidence"][None], rows["nominal_shoulder"].T, rows["wrist"].T,
+            ]
+        values = list(_rows_of(parts))
+        # astype keeps strides
+        converged = np.ascontiguousarray(rows["heading_converged"], dtype=np.int8)
     return Block(
         CONTRACT_FLOATS + DISPLAY_EXTRA if display else CONTRACT_FLOATS,
-        _rows_of(parts),
-        _STATE_NAMES[rows["state"] + 1].tolist(),
-        np.ascontiguousarray(rows["heading_converged"], dtype=np.int8),  # astype keeps strides
+        values,
+        _states(rows["state"]),
+        converged,
     )
 
 
 def overlay_block(rows: Mapping[str, NDArray[Any]]) -> Block:
     """What the game needs to draw the shoulder indicator and the hand, nothing else."""
     d = rows["shoulder"][:, :2] - rows["nominal_shoulder"][:, :2]
-    return Block(
-        _OVERLAY_FLOATS,
-        _rows_of([rows["t"][None], rows["wrist"].T, rows["shoulder_displacement_m"][None], d.T]),
-        _STATE_NAMES[rows["state"] + 1].tolist(),
+    parts = [rows["t"][None], rows["wrist"].T, rows["shoulder_displacement_m"][None], d.T]
+    values: list[Column] = (
+        [c for p in parts for c in p.tolist()] if len(d) < LIST_ROWS else list(_rows_of(parts))
     )
+    return Block(_OVERLAY_FLOATS, values, _states(rows["state"]))
+
+
+def _states(codes: NDArray[Any]) -> list[str | None]:
+    if len(codes) < LIST_ROWS:
+        names = _STATE_LIST
+        return [names[c + 1] for c in codes.tolist()]
+    states: list[str | None] = _STATE_NAMES[codes + 1].tolist()
+    return states
 
 
 def _rows_of(parts: list[NDArray[Any]]) -> NDArray[np.float64]:
@@ -114,14 +146,25 @@ def join(blocks: Sequence[Block]) -> Block:
     """Consecutive blocks of the same columns as one."""
     if len(blocks) == 1:
         return blocks[0]
+    first = blocks[0]
+    values: list[Column]
+    if all(isinstance(v, list) for b in blocks for v in b.values):
+        values = [
+            [x for b in blocks for x in b.values[j]]
+            for j in range(len(first.names))
+        ]
+    else:
+        values = list(np.concatenate(
+            [np.asarray(b.values, dtype=np.float64) for b in blocks], axis=1,
+        ))
     convs = [b.converged for b in blocks if b.converged is not None]
-    values = np.empty((len(blocks[0].names), sum(b.values.shape[1] for b in blocks)))
-    return Block(
-        blocks[0].names,
-        np.concatenate([b.values for b in blocks], axis=1, out=values),
-        [s for b in blocks for s in b.state],
-        np.concatenate(convs) if convs else None,
-    )
+    converged: list[int] | NDArray[np.int8] | None = None
+    if convs:
+        converged = (
+            [c for part in convs for c in part] if all(isinstance(c, list) for c in convs)
+            else np.concatenate([np.asarray(c, dtype=np.int8) for c in convs])
+        )
+    return Block(first.names, values, [s for b in blocks for s in b.state], converged)
 
 
 def dumps(obj: Any) -> bytes:
@@ -132,13 +175,17 @@ def dumps(obj: Any) -> bytes:
 def as_rows(block: Block) -> Rows:
     """Plain lists, None for NaN (for Python consumers such as the 3D view)."""
     out: Rows = {
-        name: [x if math.isfinite(x) else None for x in v]
-        for name, v in zip(block.names, block.values.tolist(), strict=True)
+        name: [x if math.isfinite(x) else None for x in _list(v)]
+        for name, v in zip(block.names, block.values, strict=True)
     }
     if block.converged is not None:
-        out["heading_converged"] = block.converged.tolist()
+        out["heading_converged"] = _list(block.converged)
     out["state"] = list(block.state)
     return out
+
+
+def _list(v: Any) -> list[Any]:
+    return v.tolist() if isinstance(v, np.ndarray) else list(v)
 
 
 def status_message(

@@ -9,6 +9,7 @@ identical to an offline analysis of the recording.
 from __future__ import annotations
 
 import logging
+import math
 from collections import deque
 from dataclasses import dataclass
 from typing import Any
@@ -27,6 +28,7 @@ from estimators.pipeline import Output, Pipeline
 log = logging.getLogger(__name__)
 
 SHOULDER_MEMORY = 25  # rows (1 s at 25 Hz) averaged for "nominal from the estimate"
+SHOULDER_BATCH = 64  # polled rows filtered at once (per poll, numpy's call overhead dominated)
 
 
 @dataclass(frozen=True)
@@ -77,10 +79,13 @@ class LiveRun:
         self.nominal: tuple[float, float, float] | None = None
         # where the next nominal shoulder comes from (for the sessions table)
         self.nominal_source = "params" if self.params.nominal_shoulder_m is not None else "auto"
-        # the newest converged shoulder rows, one block per poll (a row each was a numpy view
-        # per row): at least SHOULDER_MEMORY rows once there are that many
+        # the newest converged shoulder rows, in blocks (a row each was a numpy view per
+        # row): at least SHOULDER_MEMORY rows once there are that many; the polls' rows wait
+        # unfiltered in _unsorted until SHOULDER_BATCH of them (or a request) are there
         self._shoulders: deque[np.ndarray] = deque()
         self._shoulder_rows = 0
+        self._unsorted: list[tuple[np.ndarray, np.ndarray]] = []
+        self._unsorted_rows = 0
         self.failures = 0
         self.converged = False  # of the newest row (a change is pushed to dashboards)
         self.pending: list[dict[str, Any]] = []  # therapist events waiting for data
@@ -174,6 +179,22 @@ class LiveRun:
         return out
 
     def _keep_shoulders(self, sh: np.ndarray, converged: np.ndarray) -> None:
+        self._unsorted.append((sh, converged))
+        self._unsorted_rows += len(sh)
+        if self._unsorted_rows >= SHOULDER_BATCH:
+            self._sort_shoulders()
+
+    def _sort_shoulders(self) -> None:
+        """The waiting rows' finite, converged shoulders into the kept blocks: the same
+        rows, in the same order, as filtering each poll's block on its own."""
+        if not self._unsorted:
+            return
+        parts, self._unsorted, self._unsorted_rows = self._unsorted, [], 0
+        if len(parts) == 1:
+            sh, converged = parts[0]
+        else:
+            sh = np.concatenate([p[0] for p in parts])
+            converged = np.concatenate([p[1] for p in parts])
         block = sh[np.isfinite(sh).all(axis=1) & converged.astype(bool)]
         if not len(block):
             return
@@ -195,6 +216,7 @@ class LiveRun:
         self.fed_since_poll = False
 
     def shoulder_estimate(self) -> list[float] | None:
+        self._sort_shoulders()
         if not self._shoulders:
             return None
         recent = np.concatenate(self._shoulders)[-SHOULDER_MEMORY:]
@@ -204,11 +226,11 @@ class LiveRun:
         """The nominal shoulder of the newest row, if it differs from the last one seen."""
         if not out.n:
             return None
-        nom = out.rows["nominal_shoulder"][-1]
-        if not np.isfinite(nom).all():
+        x, y, z = out.rows["nominal_shoulder"][-1].tolist()  # Python floats: cheaper here
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
             self.nominal = None
             return None
-        point = (float(nom[0]), float(nom[1]), float(nom[2]))
+        point = (x, y, z)
         if point == self.nominal:
             return None
         self.nominal = point
