@@ -101,7 +101,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     app = create_app(settings)
     app.state.live_required = True  # a service that cannot open Zenoh must not pretend
     uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level,
-                ws="websockets-sansio")
+                ws="websockets-sansio", ws_per_message_deflate=settings.ws_compression)
     return 0
 
 
@@ -183,7 +183,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     app = create_app(settings)
     app.state.live_required = True
     server = uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level="warning",
-                                           ws="websockets-sansio"))
+                                           ws="websockets-sansio",
+                                           ws_per_message_deflate=settings.ws_compression))
     stop = threading.Event()
     streams: list[threading.Thread] = []
 

@@ -133,6 +133,17 @@ class RowTable(Mapping[str, Any]):
         return len(ROW_COLUMNS)
 
 
+def concat_rows(parts: Sequence[Mapping[str, Array]]) -> Mapping[str, Array]:
+    """Consecutive polls' rows as one table."""
+    if all(isinstance(p, RowTable) for p in parts):
+        tables: list[RowTable] = [p for p in parts if isinstance(p, RowTable)]
+        return RowTable(
+            np.concatenate([p.m for p in tables]),
+            np.concatenate([p["state"] for p in tables]),
+        )
+    return {k: np.concatenate([p[k] for p in parts]) for k in ROW_COLUMNS}
+
+
 @dataclass
 class Output:
     """New rows (``ROW_COLUMNS``, arrays of equal length) and feedback since the last poll."""

@@ -373,6 +373,7 @@ class LiveManager:
     def flush_session(self, session_id: int, device: str) -> None:
         w = self.workers.get(device)
         if w is not None and w.live.session_id == session_id and w.live.files is not None:
+            w.live.run.format_rows()
             w.live.files.flush()
 
     # ------------------------------------------------------------------ after a crash
