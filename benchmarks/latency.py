@@ -2,7 +2,7 @@
 
 Three processes besides this one: the service (``rehab serve``, SQLite, a session on every
 device so recording and cycle storage are part of the load), a publisher (all devices:
-100 Hz IMU in messages of 4 samples, 25 Hz robot, each device at its own phase), and a
+100 Hz IMU in messages of 4 samples, 25 Hz robot, the devices starting over 5 s), and a
 subscriber (``rehab/*/estimate`` on Zenoh, and the therapists' WebSocket feed).
 
 The publisher notes the wall time at which it sent each robot sample, the subscriber the
@@ -36,6 +36,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 TARGET_P99_MS = 50.0
 WARMUP_S = 10.0  # excluded from the steady-state figures (process start, first polls)
+START_SPREAD_S = 5.0  # device i starts i/N of this after the first (the converged update interval)
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 PAGE = os.sysconf("SC_PAGE_SIZE")
 
@@ -66,7 +67,11 @@ def publisher(args: argparse.Namespace) -> None:
     schedule: list[tuple[float, int, str, bytes, float | None]] = []
     for i in range(n):
         name = device_name(i)
-        phase = 0.04 * i / n  # devices are not in lockstep
+        # Devices start their sessions at different moments (over one heading-update
+        # interval, as a clinic's would), each on its own clock from 0. --lockstep: all
+        # within one robot period, so every periodic cost of the 50 pipelines (heading
+        # updates, cycle verdicts) falls on the same instant: the worst case.
+        phase = (0.04 if args.lockstep else START_SPREAD_S) * i / n
         for m in template:
             key = m.key.replace("/tmpl/", f"/{name}/", 1)
             robot_t = m.at if m.key.endswith("/robot") else None
@@ -195,7 +200,9 @@ def stats_ms(a: np.ndarray) -> dict[str, float | None]:
             "p99": round(float(p99), 2), "max": round(float(a.max() * 1e3), 2)}
 
 
-def run(n: int, duration: float, sessions: bool = True, verbose: bool = True) -> dict[str, Any]:
+def run(
+    n: int, duration: float, sessions: bool = True, verbose: bool = True, lockstep: bool = False
+) -> dict[str, Any]:
     import httpx
 
     from backend.auth.first_admin import read_admin_credentials
@@ -242,7 +249,8 @@ def run(n: int, duration: float, sessions: bool = True, verbose: bool = True) ->
         sub.stdout.readline()
         pub = subprocess.Popen(
             [*me, "--role", "publisher", "--endpoint", endpoint, "--devices", str(n),
-             "--duration", str(duration), "--out", str(work / "pub.json")],
+             "--duration", str(duration), "--out", str(work / "pub.json"),
+             *(["--lockstep"] if lockstep else [])],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=REPO)
         procs.append(pub)
         assert pub.stdout is not None and pub.stdin is not None
@@ -301,7 +309,7 @@ def run(n: int, duration: float, sessions: bool = True, verbose: bool = True) ->
         cpu_steady = ((steady[-1][1] - steady[0][1]) / (steady[-1][0] - steady[0][0])
                       if len(steady) > 2 else None)
         result = {
-            "devices": n, "duration_s": duration, "sessions": sessions,
+            "devices": n, "duration_s": duration, "sessions": sessions, "lockstep": lockstep,
             "messages_published": pubres["messages"], "messages_received": received,
             "messages_lost": pubres["messages"] - received, "messages_dropped": dropped,
             "robot_samples": z_sent, "estimates_received_zenoh": z_recv,
@@ -343,13 +351,13 @@ def run(n: int, duration: float, sessions: bool = True, verbose: bool = True) ->
         shutil.rmtree(work, ignore_errors=True)
 
 
-def sweep(duration: float, start: int, sessions: bool) -> dict[str, Any]:
+def sweep(duration: float, start: int, sessions: bool, lockstep: bool = False) -> dict[str, Any]:
     """Grow N while the target holds, then bisect between the last pass and first fail."""
     runs: dict[int, dict[str, Any]] = {}
 
     def ok(n: int) -> bool:
         if n not in runs:
-            runs[n] = run(n, duration, sessions)
+            runs[n] = run(n, duration, sessions, lockstep=lockstep)
         return bool(runs[n]["meets_target"])
 
     lo, hi = 0, start
@@ -386,6 +394,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--devices", type=int, default=50)
     ap.add_argument("--duration", type=float, default=120.0, metavar="S")
     ap.add_argument("--sweep", action="store_true", help="find the largest N meeting p99 ≤ 50 ms")
+    ap.add_argument("--lockstep", action="store_true",
+                    help="all devices start within 40 ms with the same data (worst case)")
     ap.add_argument("--sweep-start", type=int, default=10)
     ap.add_argument("--no-sessions", action="store_true",
                     help="devices stream without a session (no recording, no cycle storage)")
@@ -404,12 +414,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         subscriber(args)
         return 0
     if args.sweep:
-        result = sweep(args.duration, args.sweep_start, not args.no_sessions)
+        result = sweep(args.duration, args.sweep_start, not args.no_sessions, args.lockstep)
         for r in result["runs"]:
             print(report(r))
         print(f"capacity: {result['capacity_devices']} devices at p99 ≤ {TARGET_P99_MS:.0f} ms")
     else:
-        result = run(args.devices, args.duration, not args.no_sessions)
+        result = run(args.devices, args.duration, not args.no_sessions, lockstep=args.lockstep)
         print(report(result))
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=1))

@@ -126,11 +126,31 @@ class RowTable(Mapping[str, Any]):
             self._cols[name] = col
         return col
 
+    def column_lists(self, index: Idx) -> list[list[float]]:
+        """Matrix columns ``index`` (:func:`column_index`) as Python lists, in one numpy
+        call (a live poll's one row: a tolist() per column cost several times more)."""
+        out: list[list[float]] = self.m[:, index].T.tolist()
+        return out
+
+    def bare(self) -> RowTable:
+        """The same rows without the columns made so far (to keep many tables small)."""
+        return RowTable(self.m, self._cols["state"])
+
     def __iter__(self) -> Iterator[str]:
         return iter(ROW_COLUMNS)
 
     def __len__(self) -> int:
         return len(ROW_COLUMNS)
+
+
+def column_index(names: Sequence[str]) -> Idx:
+    """Matrix columns of ``ROW_COLUMNS`` names (every component of a vector column), for
+    :meth:`RowTable.column_lists`. Not ``state``: it is not in the matrix."""
+    idx: list[int] = []
+    for name in names:
+        a, w = _SPAN[name]
+        idx.extend(range(a, a + w))
+    return np.array(idx, dtype=np.intp)
 
 
 def concat_rows(parts: Sequence[Mapping[str, Array]]) -> Mapping[str, Array]:

@@ -29,6 +29,8 @@ import numpy as np
 import orjson
 from numpy.typing import NDArray
 
+from estimators.pipeline import RowTable, column_index
+
 Rows = dict[str, list[Any]]
 
 # Contract §7 float columns, in the order of estimates.csv (heading_converged and state are
@@ -78,9 +80,30 @@ class Block:
         return cols
 
 
+_ROW_SOURCES = (
+    "t", "elbow", "shoulder", "elbow_angle_deg", "heading_offset_deg", "shoulder_displacement_m",
+)
+_DISPLAY_SOURCES = (
+    "upper_arm_elevation_deg", "upper_arm_azimuth_deg", "heading_confidence",
+    "nominal_shoulder", "wrist",
+)
+# matrix columns of a pipeline row table: the float columns, then heading_converged
+_CONTRACT_INDEX = column_index((*_ROW_SOURCES, "heading_converged"))
+_DISPLAY_INDEX = column_index((*_ROW_SOURCES, *_DISPLAY_SOURCES, "heading_converged"))
+
+
 def estimate_block(rows: Mapping[str, NDArray[Any]], display: bool) -> Block:
     """Contract §7 columns and, if ``display``, the dashboard's (contract first)."""
     t = rows["t"]
+    if isinstance(rows, RowTable) and len(t) < LIST_ROWS:
+        cols = rows.column_lists(_DISPLAY_INDEX if display else _CONTRACT_INDEX)
+        flags = cols.pop()  # heading_converged, 1.0/0.0 in the matrix
+        return Block(
+            CONTRACT_FLOATS + DISPLAY_EXTRA if display else CONTRACT_FLOATS,
+            list[Column](cols),
+            _states(rows["state"]),
+            [1 if f > 0.5 else 0 for f in flags],
+        )
     if len(t) < LIST_ROWS:
         values: list[Column] = [
             t.tolist(), *rows["elbow"].T.tolist(), *rows["shoulder"].T.tolist(),

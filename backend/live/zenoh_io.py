@@ -209,7 +209,9 @@ class ZenohIO:
                     encoding=zenoh.Encoding.APPLICATION_JSON,
                     # a slow subscriber loses outputs; it never stalls the pipelines
                     congestion_control=zenoh.CongestionControl.DROP,
-                    express=True,  # no batching delay on the feedback loop
+                    # batched with what else is queued: express (sent alone) cost ~40 µs of
+                    # the loop per put against ~9, and saved < 0.1 ms of latency on loopback
+                    express=False,
                     allowed_destination=zenoh.Locality.REMOTE,
                 )
 

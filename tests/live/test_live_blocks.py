@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from backend.live import feed
 from backend.live.devices import DeviceStats
 from backend.live.run import SHOULDER_MEMORY, LiveRun
+from estimators.pipeline import _NCOL, _SPAN, RowTable
 
 SPECIAL = [0.0, -0.0, 1e-7, 1e16, 1e300, 5e-324, 0.1, 1 / 3, np.nan, np.inf, -np.inf]
 
@@ -31,12 +32,12 @@ def random_rows(rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:
     }
 
 
-def texts(groups: list[dict[str, np.ndarray]]) -> tuple[Any, ...]:
+def texts(groups: list[Any]) -> tuple[Any, ...]:
     with np.errstate(invalid="ignore"):  # inf - inf in the overlay's offsets
         return _texts(groups)
 
 
-def _texts(groups: list[dict[str, np.ndarray]]) -> tuple[Any, ...]:
+def _texts(groups: list[Any]) -> tuple[Any, ...]:
     out: list[Any] = []
     for display in (False, True):
         blocks = [feed.estimate_block(r, display=display) for r in groups]
@@ -105,3 +106,21 @@ def test_shoulder_estimate_from_batched_rows(seed: int) -> None:
         kept = sum(len(b) for b in live._shoulders)
         assert live._unsorted_rows < 64 and kept < SHOULDER_MEMORY + 64 + 4  # bounded
     assert live.shoulder_estimate() == reference_shoulder(seen)
+
+
+def as_table(rows: dict[str, np.ndarray]) -> RowTable:
+    """The same rows as the pipeline hands them over: one matrix behind a mapping."""
+    n = len(rows["t"])
+    m = np.full((n, _NCOL), np.nan)
+    for name, (a, w) in _SPAN.items():
+        if name in rows and name != "state":
+            m[:, a : a + w] = np.asarray(rows[name], dtype=np.float64).reshape(n, w)
+    return RowTable(m, rows["state"])
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_row_table_blocks_give_the_same_text(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    groups = [random_rows(rng, int(n)) for n in rng.integers(1, 90, size=rng.integers(1, 4))]
+    assert texts([as_table(r) for r in groups]) == texts(groups)
