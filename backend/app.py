@@ -11,8 +11,10 @@ import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
-from fastapi import Depends, FastAPI
+from fastapi import Depends, FastAPI, WebSocket, WebSocketException, status
+from fastapi.exceptions import WebSocketRequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
+from starlette.websockets import WebSocketState
 
 from backend.auth.first_admin import ensure_first_admin
 from backend.auth.guards import current_therapist
@@ -102,6 +104,22 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         await state.database.dispose()
 
 
+async def _refuse_websocket(websocket: WebSocket, exc: Exception) -> None:
+    """A refused WebSocket (no or bad credentials, a dead overlay link, bad parameters, the
+    live side down) ends with its documented close code (1008, 1013) after the handshake:
+    refused during it, a browser sees only HTTP 403 and close code 1006, and the overlay
+    could not tell a dead link from a broken network."""
+    if isinstance(exc, WebSocketException):
+        code, reason = exc.code, exc.reason or ""
+    else:  # the parameters did not validate
+        code, reason = status.WS_1008_POLICY_VIOLATION, "invalid parameters"
+    if websocket.application_state == WebSocketState.DISCONNECTED:
+        return
+    if websocket.client_state == WebSocketState.CONNECTING:
+        await websocket.accept()
+    await websocket.close(code=code, reason=reason[:120])
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or get_settings()
     app = FastAPI(
@@ -113,6 +131,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         redoc_url=None,
     )
     app.state.settings = settings
+    app.add_exception_handler(WebSocketException, _refuse_websocket)
+    app.add_exception_handler(WebSocketRequestValidationError, _refuse_websocket)
     if settings.cors_origins:
         app.add_middleware(
             CORSMiddleware,

@@ -9,7 +9,7 @@ import time
 from typing import Any
 
 import pytest
-from websockets.exceptions import ConnectionClosed, InvalidStatus
+from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
 from backend.live.feed import DISPLAY_EXTRA, OVERLAY_COLUMNS
@@ -62,9 +62,15 @@ def therapist(service: Service, query: str = "") -> Listener:
 
 
 def refused(service: Service, path: str, headers: dict[str, str] | None = None) -> None:
-    with pytest.raises(InvalidStatus) as exc:
-        connect(ws_url(service, path), additional_headers=headers or {}, open_timeout=10)
-    assert exc.value.response.status_code == 403, path
+    """Refused with close code 1008 after the handshake (what a browser can read), and
+    nothing sent before."""
+    url = ws_url(service, path)
+    with (
+        connect(url, additional_headers=headers or {}, open_timeout=10) as ws,
+        pytest.raises(ConnectionClosed) as exc,
+    ):
+        ws.recv(timeout=10)
+    assert exc.value.rcvd is not None and exc.value.rcvd.code == 1008, path
 
 
 def test_live_and_overlay_feeds(service: Service) -> None:
