@@ -45,6 +45,13 @@ _DET_FMT = "%r,%.6f,%.6f,%.6f,%.6f,%.3f,%.4f,%.3f,%.3f,%.5f,%.5f,%.5f,%.3f,%.5f,
 _Column = np.ndarray | list[str]
 
 
+def _lines(fmt: str, cols: list[_Column]) -> list[str]:
+    """``fmt % row`` per row, NaN as an empty cell ("nan" cannot occur otherwise)."""
+    if len(cols[0]) >= _VECTOR_ROWS:
+        return _table_lines(fmt, cols)
+    return _format_rows(fmt, [c.tolist() if isinstance(c, np.ndarray) else c for c in cols])
+
+
 def _format_rows(fmt: str, cols: list[list[Any]]) -> list[str]:
     """``fmt % row`` per row, NaN as an empty cell ("nan" cannot occur otherwise): one
     C-level format per row."""
@@ -170,81 +177,20 @@ def _digits(q: np.ndarray, neg: np.ndarray, p: int) -> np.ndarray:
 def estimate_lines(rows: Mapping[str, np.ndarray]) -> list[str]:
     """Rows of ``estimates.csv`` (contract §6); empty cells where no value exists yet."""
     el, sh = rows["elbow"], rows["shoulder"]
-    conv = rows["heading_converged"]
-    conv = conv if conv.dtype == np.bool_ else conv.astype(np.int64)  # %d: the same digits
-    if len(el) < _VECTOR_ROWS:
-        # a live poll's row or two: a few tolist() calls, then one % per row (splitting the
-        # matrices into columns first cost more than the formatting)
-        return _format_rows_of(
-            _EST_FMT,
-            rows["t"].tolist(),
-            el.tolist(),
-            sh.tolist(),
-            rows["elbow_angle_deg"].tolist(),
-            rows["heading_offset_deg"].tolist(),
-            conv.tolist(),
-            rows["shoulder_displacement_m"].tolist(),
-            [STATE_NAMES[s] for s in rows["state"].tolist()],
-        )
     cols: list[_Column] = [
         rows["t"],
         *(el[:, j] for j in range(3)),
         *(sh[:, j] for j in range(3)),
         rows["elbow_angle_deg"],
         rows["heading_offset_deg"],
-        conv,
+        rows["heading_converged"].astype(np.int64),
         rows["shoulder_displacement_m"],
         [STATE_NAMES[int(s)] for s in rows["state"].tolist()],
     ]
-    return _table_lines(_EST_FMT, cols)
-
-
-def _format_rows_of(
-    fmt: str,
-    t: list[float],
-    el: list[list[float]],
-    sh: list[list[float]],
-    angle: list[float],
-    offset: list[float],
-    conv: list[Any],
-    disp: list[float],
-    state: list[str],
-) -> list[str]:
-    """:func:`_format_rows` of ``estimates.csv``'s columns, from the arrays' rows."""
-    return [
-        (fmt % (t[i], *el[i], *sh[i], angle[i], offset[i], conv[i], disp[i], state[i])).replace(
-            "nan", ""
-        )
-        for i in range(len(t))
-    ]
+    return _lines(_EST_FMT, cols)
 
 
 def detail_lines(rows: Mapping[str, np.ndarray]) -> list[str]:
-    if len(rows["t"]) < _VECTOR_ROWS:  # as in estimate_lines
-        t, q, sd = rows["t"].tolist(), rows["q_ra"].tolist(), rows["heading_std_deg"].tolist()
-        conf = rows["heading_confidence"].tolist()
-        elev = rows["upper_arm_elevation_deg"].tolist()
-        azim = rows["upper_arm_azimuth_deg"].tolist()
-        nom, wrist = rows["nominal_shoulder"].tolist(), rows["wrist"].tolist()
-        conv, length = rows["conv_elbow_angle_deg"].tolist(), rows["upper_arm_length_m"].tolist()
-        return [
-            (
-                _DET_FMT
-                % (
-                    t[i],
-                    *q[i],
-                    sd[i],
-                    conf[i],
-                    elev[i],
-                    azim[i],
-                    *nom[i],
-                    conv[i],
-                    *wrist[i],
-                    length[i],
-                )
-            ).replace("nan", "")
-            for i in range(len(t))
-        ]
     m = np.concatenate(
         [
             rows["t"][:, None],
@@ -260,7 +206,7 @@ def detail_lines(rows: Mapping[str, np.ndarray]) -> list[str]:
         ],
         axis=1,
     )
-    return _table_lines(_DET_FMT, [m[:, j] for j in range(m.shape[1])])
+    return _lines(_DET_FMT, [m[:, j] for j in range(m.shape[1])])
 
 
 def estimate_payload(rows: dict[str, np.ndarray]) -> dict[str, list[Any]]:

@@ -182,7 +182,7 @@ class Output:
             if not self.rows:
                 self.rows = {k: v.copy() for k, v in other.rows.items()}
             else:
-                self.rows = {k: np.concatenate((v, other.rows[k])) for k, v in self.rows.items()}
+                self.rows = concat_rows([self.rows, other.rows])
         self.feedback.extend(other.feedback)
         self.cycles.extend(other.cycles)
         self.episodes.extend(other.episodes)
@@ -754,7 +754,7 @@ class Pipeline:
         self._imu = _ImuStage(p)
         self._robot = _RobotStage(p)
         self._grid = _GridStage(p)
-        # messages fed since the last poll, with their arrays as lists where already made
+        # messages fed since the last poll
         self._imu_pending: list[tuple[Array, Array, Array]] = []
         self._robot_pending: list[tuple[Array, Array, Array, Array | None]] = []
         self._imu_frontier = -math.inf  # last IMU stamp fed
@@ -1088,12 +1088,7 @@ class Pipeline:
         self._snap_t.extend(s[0] for s in snaps)
 
     def _robot_samples(
-        self,
-        t: Array,
-        wrist: Array,
-        prox: Array,
-        elbow: Array | None,
-        off: float,
+        self, t: Array, wrist: Array, prox: Array, elbow: Array | None, off: float
     ) -> None:
         """Elbow and forearm axis from the cuffs (eq. 13), or the robot's own elbow."""
         n = len(t)
