@@ -26,6 +26,7 @@ Both sides then see the same filter, the same delay and no gyro derivative at al
 
 from __future__ import annotations
 
+import array
 import bisect
 import math
 from collections.abc import Iterator, Mapping, Sequence
@@ -131,10 +132,6 @@ class RowTable(Mapping[str, Any]):
         call (a live poll's one row: a tolist() per column cost several times more)."""
         out: list[list[float]] = self.m[:, index].T.tolist()
         return out
-
-    def bare(self) -> RowTable:
-        """The same rows without the columns made so far (to keep many tables small)."""
-        return RowTable(self.m, self._cols["state"])
 
     def __iter__(self) -> Iterator[str]:
         return iter(ROW_COLUMNS)
@@ -252,7 +249,17 @@ class _Stream:
         return True
 
 
+def _run_end(values: Sequence[int], i: int) -> int:
+    """End of the run of equal values starting at ``i``."""
+    v, j, n = values[i], i + 1, len(values)
+    while j < n and values[j] == v:
+        j += 1
+    return j
+
+
 # ------------------------------------------------------------------------------ stage 1: IMU
+
+_FEW_SAMPLES = 8  # up to this many samples per piece, per-sample work in Python floats
 
 
 class _ImuStage:
@@ -284,6 +291,8 @@ class _ImuStage:
         self.w_prev: tuple[float, list[float]] | None = None  # last (t, ω_A) of this segment
         self.buf = RowBuffer(self.WIDTH)
         self.tl: list[float] = []  # the buffer's times as floats (bisect for single rows)
+        self._zeros = np.zeros((_FEW_SAMPLES, 3))  # constant columns of a few rows
+        self._seg_col = np.zeros((_FEW_SAMPLES, 1))
 
     @property
     def t(self) -> Array:
@@ -296,6 +305,7 @@ class _ImuStage:
     def _reset(self) -> None:
         assert self.ts is not None
         self.vqf = VQF(self.ts, tauAcc=self.p.vqf_tau_acc_s)
+        self._seg_col = np.full((_FEW_SAMPLES, 1), float(self.seg))
         self.gyro_zi = None
         self.gyro_prev = None
         self.w_prev = None
@@ -369,13 +379,7 @@ class _ImuStage:
         out = self.vqf.updateBatch(np.ascontiguousarray(gyr), np.ascontiguousarray(acc))
         q_is = out["quat6D"]
         tl = t.tolist() if tl is None else tl
-        # filled in place: a message's few rows cost more in numpy calls than in arithmetic
-        b = self.buf.grow(n)
-        b[:, self.T] = t
-        b[:, self.SEG] = float(self.seg)
-        b[:, self.Q : self.Q + 4] = q_is if self.identity_mount else quat.mul(q_is, self.mount)
-        b[:, self.QS : self.QS + 4] = q_is
-        b[:, self.ACC : self.ACC + 3] = acc
+        q_ia = q_is if self.identity_mount else quat.mul(q_is, self.mount)
         if self.p.method == "paper":
             assert self.gyro_lp is not None and self.ts is not None
             if self.gyro_zi is None or self.gyro_prev is None:
@@ -385,26 +389,28 @@ class _ImuStage:
             prev = np.concatenate((self.gyro_prev[None], gf[:-1]))
             gdot = (gf - prev) / self.ts  # backward difference of the low-passed gyro (eq. 1)
             self.gyro_prev = gf[-1].copy()
-            b[:, self.V : self.V + 3] = kin.inertial_acceleration(
-                q_is, kin.joint_specific_force(acc, gyr, gdot, self.r)
-            )
+            v = kin.inertial_acceleration(q_is, kin.joint_specific_force(acc, gyr, gdot, self.r))
         else:
-            b[:, self.V : self.V + 3] = 0.0
+            v = self._zeros[:n] if n <= _FEW_SAMPLES else np.zeros((n, 3))
         w_a = gyr if self.identity_mount else quat.rotate(self.unmount, gyr)
-        b[:, self.W : self.W + 3] = w_a
         # angular acceleration: backward difference, 0 at a segment's first sample
-        if self.w_prev is not None and len(self.buf) > n:
-            # the previous sample is the buffer's row before these (same arithmetic)
-            a, hi = self.buf.a, self.buf.hi
-            prev = a[hi - n - 1 : hi - 1]
-            b[:, self.DW : self.DW + 3] = (
-                b[:, self.W : self.W + 3] - prev[:, self.W : self.W + 3]
-            ) / (b[:, self.T : self.T + 1] - prev[:, self.T : self.T + 1])
-        else:
-            t0, w0 = self.w_prev if self.w_prev is not None else (tl[0] - 1.0, w_a[0])
-            prev_w = np.concatenate((np.asarray(w0, dtype=np.float64)[None], w_a[:-1]))
+        t0, w0 = self.w_prev if self.w_prev is not None else (tl[0] - 1.0, w_a[0].tolist())
+        if n <= _FEW_SAMPLES:  # a message's few: Python floats beat numpy's per-call cost
+            dwl = array.array("d")
+            p0, p1, p2 = w0
+            for tj, (x, y, z) in zip(tl, w_a.tolist(), strict=True):
+                h = tj - t0
+                dwl.extend(((x - p0) / h, (y - p1) / h, (z - p2) / h))
+                t0, p0, p1, p2 = tj, x, y, z
+            dw = np.frombuffer(dwl).reshape(n, 3)
+            seg = self._seg_col[:n]
+        else:  # the same arithmetic
+            prev_w = np.concatenate((np.array([w0], dtype=np.float64), w_a[:-1]))
             prev_t = np.concatenate(([t0], t[:-1]))
-            b[:, self.DW : self.DW + 3] = (w_a - prev_w) / (t - prev_t)[:, None]
+            dw = (w_a - prev_w) / (t - prev_t)[:, None]
+            seg = np.full((n, 1), float(self.seg))
+        # one copy into the buffer: per-column assignments cost more than the arithmetic
+        np.concatenate((t[:, None], seg, q_ia, q_is, acc, v, w_a, dw), axis=1, out=self.buf.grow(n))
         self.w_prev = (tl[-1], w_a[-1].tolist())
         self.tl.extend(tl)
 
@@ -655,7 +661,8 @@ class _GridStage:
             ok_i, vu = imu.smooth(g, self.half)
         else:
             ok_i, vu = imu.interp_channels(g)
-        segs = imu.segid[np.clip(np.searchsorted(np.asarray(imu.tl), g), 0, len(imu.tl) - 1)]
+        # (the buffer's time column: the same floats as imu.tl, without a list conversion)
+        segs = imu.segid[np.clip(np.searchsorted(imu.t, g), 0, len(imu.tl) - 1)]
         ok_r, p = robot.interp(g)
         ok = ok_i & ok_r
         x = np.concatenate((vu, p), axis=1)
@@ -1145,6 +1152,8 @@ class Pipeline:
                 disp.append(row[_DISP])
                 boundaries.extend(seg.push(tj, rj[0], rj[1]))
             tt = t
+            # (not np.frombuffer of an array.array, though faster: its base objects would be
+            # tracked by the cyclic collector as long as the rows live)
             m = np.array(flat).reshape(n, _NCOL)
         else:
             with np.errstate(invalid="ignore", divide="ignore"):  # NaN where no estimate
@@ -1240,16 +1249,33 @@ class Pipeline:
         angle = self._angle(M, x_now, x_a, x_c, prev, t - prev_t, latency)
         tl = t.tolist()
         pe_rows = block[:, 3:6].tolist()
-        la = np.array(
-            [self._arm_length(tj, pj, k) for tj, pj, k in zip(tl, pe_rows, spec, strict=True)]
-        )
+        # per row as in _row, but a run of rows whose value can no longer change is filled
+        # at once (an analysis has ~10^4 rows and one or two nominal specs)
+        la = np.empty(n)
+        i = 0
+        while i < n:
+            k = spec[i]
+            if self._arm_length_fixed(k):
+                j = _run_end(spec, i)
+                la[i:j] = self._arm_len
+                i = j
+            else:
+                la[i] = self._arm_length(tl[i], pe_rows[i], k)
+                i += 1
         sh = rows.shoulder(p_e, x_a, la)
         sh_rows = np.column_stack(sh).tolist()
-        nom_rows = [
-            self._nominal_at(tj, tuple(sj), gj, k)
-            for tj, sj, gj, k in zip(tl, sh_rows, h.good.tolist(), spec, strict=True)
-        ]
-        nom_a = np.array(nom_rows).reshape(n, 3)
+        good = h.good.tolist()
+        nom_a = np.empty((n, 3))
+        i = 0
+        while i < n:
+            k = spec[i]
+            nom_i = self._nominal_at(tl[i], tuple(sh_rows[i]), good[i], k)
+            nom_a[i] = nom_i
+            i += 1
+            if self._nom_point is not None:  # set for the rest of this spec's rows
+                j = _run_end(spec, i - 1)
+                nom_a[i:j] = self._nom_point
+                i = j
         nom = tuple(nom_a[:, i] for i in range(3))
         disp = rows.displacement(M, sh, nom, p.displacement_norm)
         conv = rows.conventional_angle(M, p_e, nom, x_c)
@@ -1285,6 +1311,14 @@ class Pipeline:
         if mode == "extrapolate":
             x_c = rows.extrapolate(M, x_c, prev, dt, latency)
         return rows.angle_deg(M, x_now, x_c)
+
+    def _arm_length_fixed(self, k: int) -> bool:
+        """Whether :meth:`_arm_length` returns ``_arm_len`` for every row of spec ``k`` from
+        here on, whatever the row."""
+        if self.params.arm_length != "calibrate":
+            return True
+        kind, _, point = self._specs[k]
+        return kind != "point" or point is None or k == self._arm_spec_done
 
     def _arm_length(self, t: float, p_e: list[float], k: int) -> float:
         """Upper-arm length at a row: the parameter, or measured at the rope reference.
@@ -1360,8 +1394,9 @@ class Pipeline:
             if cut > 0:
                 del self._snaps[:cut]
                 del self._snap_t[:cut]
-        # forget rows already emitted (indices stay consistent through the offset)
-        if self._n_done > 4096:
+        # forget rows already emitted (indices stay consistent through the offset); soon:
+        # in a service, long lists are what the garbage collector's full passes walk
+        if self._n_done > 256:
             k = self._n_done
             del self._row_t[:k]
             del self._decisions[:k]

@@ -83,6 +83,18 @@ def _v_map(f: Callable[..., float], *a: Any) -> Any:
     return np.fromiter(map(f, *cols), dtype=np.float64, count=len(cols[0]))
 
 
+def _v_trig(f: Callable[[float], float], x: Any) -> Any:
+    """:func:`_s_trig` ``(f)`` over an array: ``math`` straight on the finite values (a
+    Python wrapper per element cost twice the function), NaN where not finite."""
+    a = np.asarray(x, dtype=np.float64)
+    fin = np.isfinite(a)
+    if fin.all():
+        return np.fromiter(map(f, a.tolist()), dtype=np.float64, count=len(a))
+    out = np.fromiter(map(f, np.where(fin, a, 0.0).tolist()), dtype=np.float64, count=len(a))
+    out[~fin] = NAN
+    return out
+
+
 class _Vector:
     """Namespace for numpy arrays of shape (n,), bit-identical to :class:`_Scalar`."""
 
@@ -102,11 +114,11 @@ class _Vector:
 
     @staticmethod
     def cos(x: Any) -> Any:
-        return _v_map(_Scalar.cos, x)
+        return _v_trig(math.cos, x)
 
     @staticmethod
     def sin(x: Any) -> Any:
-        return _v_map(_Scalar.sin, x)
+        return _v_trig(math.sin, x)
 
     @staticmethod
     def acos(x: Any) -> Any:
@@ -257,7 +269,7 @@ def elevation_azimuth(M: Any, x: Sequence[Any]) -> tuple[Any, Any]:
 
 def shoulder(p_e: Sequence[Any], x_a: Sequence[Any], la: Any) -> tuple[Any, ...]:
     """Shoulder (eq. 12): ``p_S = p_E − l_A · x_A``."""
-    return tuple(e - la * a for e, a in zip(p_e, x_a, strict=True))
+    return p_e[0] - la * x_a[0], p_e[1] - la * x_a[1], p_e[2] - la * x_a[2]
 
 
 def displacement(M: Any, s: Sequence[Any], nom: Sequence[Any], norm: str) -> Any:

@@ -1,7 +1,8 @@
 """The offline analysis's fast paths give exactly what the simple paths give.
 
-`wire.decode_many` against `wire.decode`, the column-wise CSV formatter against `%` per
-row, and the chunked recording reader against a line reader.
+`wire.decode_many` and `analysis.decode_stream` against `wire.decode` message by
+message, the column-wise CSV formatter against `%` per row, and the chunked recording
+reader against a line reader.
 """
 
 from __future__ import annotations
@@ -12,12 +13,13 @@ import math
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from backend import analysis, recording, wire
+from backend import analysis, keys, recording, wire
 
 KEYS = [
     "rehab/d/imu/upperarm",
@@ -40,7 +42,8 @@ def _outcome(x: Any) -> Any:
     for name in ("t", "gyr", "acc", "wrist", "proximal", "elbow", "shoulder", "point"):
         a = getattr(x, name, None)
         if isinstance(a, np.ndarray):
-            fields[name] = (a.dtype.str, a.shape, a.tobytes())
+            flags = (a.flags.writeable, a.flags.c_contiguous)
+            fields[name] = (a.dtype.str, a.shape, a.tobytes(), flags)
     return (type(x).__name__, fields)
 
 
@@ -94,6 +97,217 @@ def test_decode_many_on_python_objects_with_nan() -> None:
     assert [_outcome(x) for x in wire.decode_many(items)] == [_decode_one(*items[0])]
 
 
+# Batches as recordings have them: keys that repeat, payloads mostly valid (so that the
+# bulk paths are taken), some with one fault or another.
+STREAM_KEYS = ["rehab/d/imu/upperarm", "rehab/d/imu/trunk", "rehab/d/robot", "rehab/d/camera"]
+OTHER_KEYS = ["rehab/d/event", "rehab/d/estimate", "rehab/bad key/robot", "other/d/robot"]
+FIELDS = {"imu": ("gyr", "acc", None), "robot": ("wrist", "proximal", "elbow")}
+FIELDS["camera"] = ("elbow", "wrist", "shoulder")
+number = st.one_of(
+    st.floats(allow_nan=False, allow_infinity=False, width=64),
+    st.integers(-3, 3),
+    st.sampled_from([0.0, -0.0, 1e-05, 5e-324, 1.7976931348623157e308, 0.1, 2**53 + 1, 10**20]),
+)
+FAULTS = [
+    "t_reversed", "t_repeated", "t_empty", "t_string", "row_short", "row_string", "rows_extra",
+    "field_missing", "field_null", "optional_null", "seq_negative", "seq_huge", "seq_float",
+    "extra_field", "spaces", "duplicate_bad_first", "duplicate_good_first", "nan", "cut",
+    "not_object",
+]  # fmt: skip
+
+
+@st.composite
+def stream_payload(draw: st.DrawFn, key: str, n: int) -> bytes:
+    """A stream payload of ``key`` with ``n`` samples, one fault now and then."""
+    a, b, c = FIELDS[key.split("/")[2]]
+    t0 = draw(st.floats(0, 1000))
+    p: dict[str, Any] = {"t": [t0 + 0.01 * i for i in range(n)]}
+    row = st.lists(number, min_size=3, max_size=3)
+    for name in (a, b):
+        p[name] = draw(st.lists(row, min_size=n, max_size=n))
+    if c is not None and draw(st.booleans()):
+        p[c] = draw(st.lists(row, min_size=n, max_size=n))
+    if draw(st.integers(0, 3)):
+        p["seq"] = draw(st.integers(0, 2**63 - 1))
+    fault = draw(st.sampled_from(FAULTS)) if draw(st.integers(0, 4)) == 0 else None
+    if fault == "t_reversed":
+        p["t"] = p["t"][::-1]
+    elif fault == "t_repeated":
+        p["t"] = [t0] * n
+    elif fault == "t_empty":
+        p["t"] = []
+    elif fault == "t_string":
+        p["t"] = ["x"] * n
+    elif fault == "row_short":
+        p[a] = [[1.0, 2.0]] * n
+    elif fault == "row_string":
+        p[b] = [[1.0, "y", 2.0]] * n
+    elif fault == "rows_extra":
+        p[a] = p[a] + [[0.0, 0.0, 0.0]]
+    elif fault == "field_missing":
+        del p[b]
+    elif fault == "field_null":
+        p[a] = None
+    elif fault == "optional_null" and c is not None:
+        p[c] = None
+    elif fault == "seq_negative":
+        p["seq"] = -1
+    elif fault == "seq_huge":
+        p["seq"] = 2**63
+    elif fault == "seq_float":
+        p["seq"] = 1.5
+    elif fault == "extra_field":
+        p["mag"] = [[1, 2, 3]] * n
+    raw = json.dumps(p, separators=(",", ":")).encode()
+    if fault == "spaces":
+        raw = json.dumps(p).encode()
+    elif fault == "duplicate_bad_first":
+        raw = b'{"%s":"x",' % a.encode() + raw[1:]
+    elif fault == "duplicate_good_first":
+        raw = raw[:-1] + b',"t":[5.0]}'
+    elif fault == "nan":
+        raw = raw.replace(b"0.0", b"NaN", 1)
+    elif fault == "cut":
+        raw = raw[: draw(st.integers(0, len(raw) - 1))]
+    elif fault == "not_object":
+        raw = b"[" + raw + b"]"
+    return raw
+
+
+@st.composite
+def batches(draw: st.DrawFn) -> list[tuple[str, Any]]:
+    keys_ = draw(st.lists(st.sampled_from(STREAM_KEYS), min_size=1, max_size=3, unique=True))
+    usual_n = {k: draw(st.sampled_from([1, 2, 4])) for k in keys_}
+    out = []
+    for _ in range(draw(st.integers(1, 24))):
+        if draw(st.integers(0, 9)) == 0:
+            out.append((draw(st.sampled_from(OTHER_KEYS)), b'{"t":1.0,"type":"cycle_start"}'))
+            continue
+        key = draw(st.sampled_from(keys_))
+        n = usual_n[key] if draw(st.integers(0, 5)) else draw(st.integers(1, 5))
+        out.append((key, draw(stream_payload(key, n))))
+    return out
+
+
+@settings(max_examples=150, deadline=None)
+@given(batches(), st.sampled_from(["bytes", "raw", "str", "mixed"]), st.booleans())
+def test_decode_many_is_decode_on_batches(
+    items: list[tuple[str, Any]], form: str, small_limit: bool
+) -> None:
+    if form == "raw":
+        items = [(k, msgspec.Raw(p)) for k, p in items]
+    elif form == "str":
+        items = [(k, p.decode()) for k, p in items]
+    elif form == "mixed":
+        items = [(k, p if i % 3 else p.decode()) for i, (k, p) in enumerate(items)]
+    limit = wire.MAX_PAYLOAD_BYTES
+    if small_limit:  # some payloads over the size limit: too_large, as decode says
+        wire.MAX_PAYLOAD_BYTES = 100
+    try:
+        assert [_outcome(x) for x in wire.decode_many(items)] == [_decode_one(*kp) for kp in items]
+    finally:
+        wire.MAX_PAYLOAD_BYTES = limit
+
+
+def _device(key: str) -> str | None:
+    try:
+        return keys.parse(key).device
+    except keys.KeyError_:
+        return None
+
+
+def _parse(line: bytes) -> tuple[str | None, Any]:
+    """What the recording reader gives for a non-blank line."""
+    try:
+        obj = recording._LINE.decode(line)
+    except Exception:
+        return None, (line + b"\n")[:200].decode("utf-8", "replace")
+    return obj.key, obj.payload
+
+
+def _reference(lines: list[tuple[str | None, Any]]) -> list[Any]:
+    """``(device, outcome)`` of each recording line, message by message with decode."""
+    out = []
+    for key, payload in lines:
+        if key is None:
+            out.append((None, ("error", *wire.MALFORMED_LINE)))
+        else:
+            out.append((_device(key), _decode_one(key, payload)))
+    return out
+
+
+def _outcomes(decoded: Any) -> list[Any]:
+    return [(dev, _outcome(x)) for dev, x in decoded]
+
+
+JUNK_LINES = [
+    b"", b"   ", b"\t", b"not json", b"[1]", b'{"key": 1}', b'{"key":"rehab/d/robot"}',
+    b'{"key":"rehab/d/robot","payload":{"t":[1]}} {"key":"rehab/d/robot","payload":{}}',
+    b'{"key":"rehab/d/robot","payload":[1,', b'{"payload":{},"key":"rehab/d/robot"}',
+]  # fmt: skip
+
+
+@st.composite
+def recording_lines(draw: st.DrawFn) -> list[bytes]:
+    """Lines as the recorder writes them, and some that it does not."""
+    lines = []
+    for key, payload in draw(batches()):
+        form = draw(st.integers(0, 9))
+        if form == 0:
+            lines.append(draw(st.sampled_from(JUNK_LINES)))
+        head = b'{"key":' + json.dumps(key).encode() + b',"payload":'
+        if form == 1:  # the key twice, the last one another's
+            head = b'{"key":"rehab/d/imu/upperarm","key":' + json.dumps(key).encode()
+            head += b',"payload":'
+        elif form == 2:  # spelled another way
+            head = b'{ "key" : ' + json.dumps(key).encode() + b', "payload" : '
+        elif form == 3:  # the payload twice
+            head = head + b'{"t":"x"},"payload":'
+        lines.append(head + payload + (b"}\r" if form == 4 else b"}"))
+    return lines
+
+
+@settings(max_examples=150, deadline=None)
+@given(recording_lines(), st.sampled_from([1, 5, analysis._DECODE_BATCH]))
+def test_decode_stream_is_line_by_line(raw_lines: list[bytes], batch: int) -> None:
+    lines = [_parse(line) for line in raw_lines if line and not line.isspace()]
+    old, analysis._DECODE_BATCH = analysis._DECODE_BATCH, batch
+    try:
+        assert _outcomes(analysis.decode_stream(lines)) == _reference(lines)
+    finally:
+        analysis._DECODE_BATCH = old
+
+
+def test_decode_stream_of_a_recording_is_line_by_line(tmp_path: Path) -> None:
+    """A recording mixing good and bad lines, decoded in batches or message by message."""
+    rng = np.random.default_rng(3)
+    messages: list[tuple[str, Any]] = []
+    for i in range(3000):
+        t = [i * 0.04 + 0.01 * j for j in range(4)]
+        imu = {
+            "t": t,
+            "gyr": rng.normal(size=(4, 3)).tolist(),
+            "acc": rng.normal(size=(4, 3)).tolist(),
+        }
+        messages.append(("rehab/sim/imu/upperarm", {**imu, "seq": i}))
+        robot = {"t": [t[0]], "wrist": [[0.1, 0.2, 0.3]], "proximal": [[0.0, -0.0, 1e-05]]}
+        messages.append(("rehab/sim/robot", robot if i % 7 else {**robot, "elbow": [[1, 2, 3]]}))
+        if i % 500 == 250:  # faults now and then
+            messages.append(("rehab/sim/robot", {"t": [1.0, 0.5], "wrist": [], "proximal": []}))
+            messages.append(("rehab/sim/imu/upperarm", {**imu, "seq": -1}))
+            messages.append(("rehab/sim/event", {"t": 1.0, "type": "cycle_start"}))
+            messages.append(("rehab/other/estimate", {}))
+    path = tmp_path / "r.jsonl.gz"
+    recording.write(path, messages)
+    data = gzip.decompress(path.read_bytes()).split(b"\n")
+    data[1000:1000] = [b"not json", b"", b'{"key": 1}']
+    data.insert(5000, data[5000].replace(b'"payload":', b'"payload": '))
+    path.write_bytes(gzip.compress(b"\n".join(data), mtime=0))
+    lines = gzip.decompress(path.read_bytes()).split(b"\n")
+    expected = _reference([_parse(line) for line in lines if line and not line.isspace()])
+    assert _outcomes(analysis.decode_stream(recording.read(path))) == expected
+
+
 SPECIAL = [0.0, -0.0, 0.5, -0.5, 2.5, 1 / 64, -3 / 128, 0.0005, 2.0005, 0.301475, -0.234775]
 SPECIAL += [9.9999995, 999.9995, 1e15, 1e17, 1e300, 5e-324, math.inf, -math.inf, math.nan]
 
@@ -126,19 +340,33 @@ def test_column_formatter_is_percent_per_row(seed: int) -> None:
     assert analysis._table_lines(fmt, cols) == expected
 
 
-def _line_reader(path: Path) -> list[tuple[str | None, Any]]:
-    """What the recording reader gave when it read line by line."""
+def _line_reader(path: Path) -> tuple[list[tuple[str | None, Any]], str | None]:
+    """What the recording reader gave when it read line by line, and the error it ended
+    with, if any."""
     out: list[tuple[str | None, Any]] = []
-    with gzip.open(path, "rb") if path.suffix == ".gz" else open(path, "rb") as fh:
-        for line in recording._lines(fh):
-            if line.strip():
-                try:
-                    obj = recording._LINE.decode(line)
-                except Exception:
-                    out.append((None, line[:200].decode("utf-8", "replace")))
-                    continue
-                out.append((obj.key, bytes(obj.payload)))
-    return out
+    try:
+        with gzip.open(path, "rb") if path.suffix == ".gz" else open(path, "rb") as fh:
+            for line in recording._lines(fh):
+                if line.strip():
+                    try:
+                        obj = recording._LINE.decode(line)
+                    except Exception:
+                        out.append((None, line[:200].decode("utf-8", "replace")))
+                        continue
+                    out.append((obj.key, bytes(obj.payload)))
+    except Exception as exc:
+        return out, type(exc).__name__
+    return out, None
+
+
+def _read(path: Path) -> tuple[list[tuple[str | None, Any]], str | None]:
+    out: list[tuple[str | None, Any]] = []
+    try:
+        for k, v in recording.read(path):
+            out.append((k, v if k is None else bytes(v)))
+    except Exception as exc:
+        return out, type(exc).__name__
+    return out, None
 
 
 @pytest.mark.parametrize("chunk", [64, 1 << 24])
@@ -148,16 +376,25 @@ def test_chunked_reader_is_a_line_reader(
     monkeypatch.setattr(recording, "_CHUNK", chunk)
     lines = [json.dumps({"key": "rehab/d/robot", "payload": {"t": [i]}}) for i in range(300)]
     text = ("\n".join(lines[:100]) + "\n\n  \nnot json\n" + "\n".join(lines[100:])).encode()
-    whole = tmp_path / "whole.jsonl.gz"
-    whole.write_bytes(gzip.compress(text + b"\n", mtime=0))
-    cases = [whole]
-    for cut in (len(whole.read_bytes()) // 2, len(whole.read_bytes()) - 3):  # killed recorder
-        p = tmp_path / f"cut{cut}.jsonl.gz"
-        p.write_bytes(whole.read_bytes()[:cut])
-        cases.append(p)
-    plain = tmp_path / "plain.jsonl"
-    plain.write_bytes(text + b'\n{"key": "unterminated"')
-    cases.append(plain)
-    for p in cases:
-        got = [(k, v if k is None else bytes(v)) for k, v in recording.read(p)]
-        assert got == _line_reader(p), p.name
+    whole = gzip.compress(text + b"\n", mtime=0)
+    cases = {"whole.jsonl.gz": whole}
+    for cut in (len(whole) // 2, len(whole) - 3):  # killed recorder
+        cases[f"cut{cut}.jsonl.gz"] = whole[:cut]
+    half = len(text) // 2  # members (Writer's "a"): at a line's end, or inside one
+    first, second = text[: text.index(b"\n", half) + 1], text[text.index(b"\n", half) + 1 :]
+    cases["members.jsonl.gz"] = gzip.compress(first) + gzip.compress(second + b"\n")
+    cases["split.jsonl.gz"] = gzip.compress(text[:half]) + gzip.compress(text[half:] + b"\n")
+    cases["padded.jsonl.gz"] = whole + b"\0" * 10  # the gzip module reads past zeros
+    cases["garbage.jsonl.gz"] = whole + b"garbage"
+    crc = bytearray(whole)
+    crc[-8] ^= 1
+    cases["crc.jsonl.gz"] = bytes(crc)
+    corrupt = bytearray(whole)
+    corrupt[len(whole) // 3 : len(whole) // 3 + 8] = b"\xff" * 8
+    cases["corrupt.jsonl.gz"] = bytes(corrupt)
+    cases["empty.jsonl.gz"] = b""
+    cases["plain.jsonl"] = text + b'\n{"key": "unterminated"'
+    for name, data in cases.items():
+        p = tmp_path / name
+        p.write_bytes(data)
+        assert _read(p) == _line_reader(p), name

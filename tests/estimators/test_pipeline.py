@@ -272,6 +272,33 @@ def test_automatic_nominal_without_reference(short_session: Session) -> None:
     assert p.arm_length_estimate is None  # no rope reference, no measured length
 
 
+def test_nominal_specs_stream_as_batch(short_session: Session) -> None:
+    """Automatic nominal, a therapist's reset, then a second rope reference: polled after
+    every message (rows one by one) and in one batch (rows as arrays, runs of rows whose
+    nominal and arm length are settled filled at once) give the same rows."""
+    msgs = [m for m in short_session.messages if not isinstance(m, wire.EventMessage)]
+    ref = next(m for m in short_session.messages if isinstance(m, wire.EventMessage))
+    t_end = float(msgs[-1].t[-1])
+    n = len(msgs)
+    events = [
+        (n // 2, wire.EventMessage("d", 0.5 * t_end, "nominal_reset", None)),
+        (3 * n // 4, wire.EventMessage("d", 0.75 * t_end, "shoulder_reference", ref.point)),
+    ]
+    for i, e in reversed(events):
+        msgs.insert(i, e)
+    batch, p = _run(msgs)
+    live = Pipeline(PipelineParams())
+    out = Output()
+    for m in msgs:
+        live.feed(m)
+        out.extend(live.poll())
+    out.extend(live.finish())
+    _same(out, batch)
+    assert live.arm_length_estimate == p.arm_length_estimate
+    nom = batch.rows["nominal_shoulder"]
+    assert len({tuple(r) for r in nom[np.isfinite(nom).all(axis=1)].tolist()}) >= 2
+
+
 @pytest.mark.parametrize(("imu_hz", "robot_hz", "batch"), [(400.0, 10.0, 16), (50.0, 100.0, 1)])
 def test_other_rates_and_batching(imu_hz: float, robot_hz: float, batch: int) -> None:
     s = make_session(11, imu_rate_hz=imu_hz, robot_rate_hz=robot_hz, imu_batch=batch)
