@@ -17,9 +17,8 @@ from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from itertools import islice
-from operator import itemgetter
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
@@ -399,20 +398,26 @@ def decode_stream(
 ) -> Iterator[tuple[str | None, wire.Message | wire.WireError]]:
     """Decode recording lines; yield ``(device, message or error)`` (device None if unknown)."""
     it = iter(lines)
-    while batch := list(islice(it, _DECODE_BATCH)):
-        if None not in map(_KEY, batch):  # no malformed line (the usual)
-            yield from wire.decode_with_devices(cast(list[tuple[str, Any]], batch), prefix)
-            continue
-        good = [(k, p) for k, p in batch if k is not None]
-        decoded = iter(wire.decode_with_devices(good, prefix))
-        for key, _ in batch:
-            yield (None, wire.WireError(*wire.MALFORMED_LINE)) if key is None else next(decoded)
+    # batches for wire.decode_many: small, so that few decoded objects are alive at once
+    # for the cyclic collector to scan and promote
+    while chunk := list(islice(it, _DECODE_BATCH)):
+        decoded = iter(wire.decode_many([(k, p) for k, p in chunk if k is not None], prefix))
+        for key, _ in chunk:
+            if key is None:
+                yield None, wire.WireError(*wire.MALFORMED_LINE)
+                continue
+            item = next(decoded)
+            if isinstance(item, wire.WireError):
+                try:
+                    dev: str | None = keys.parse(key, prefix).device
+                except keys.KeyError_:
+                    dev = None
+                yield dev, item
+            else:
+                yield item.device, item
 
 
-# Lines per bulk decode: enough for its bulk work to pay, few enough that what it builds
-# stays in the CPU caches between its passes (4096 was slower).
-_DECODE_BATCH = 512
-_KEY = itemgetter(0)
+_DECODE_BATCH = 64
 
 
 @contextmanager

@@ -11,16 +11,13 @@ loss) needs per-stream state and lives in :mod:`backend.quality`.
 
 from __future__ import annotations
 
-import contextlib
+import array
 import json
 import math
 import operator
-import struct
-from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field, fields
-from itertools import chain, repeat, starmap
-from operator import attrgetter, itemgetter
+from itertools import chain
 from typing import Any, TypeAlias
 
 import msgspec
@@ -297,258 +294,79 @@ def decode(
         raise WireError("unknown_key", str(exc)) from None
     kind = pk.kind
     if kind in _STREAMS:
-        return _finish(pk, _structured(kind, payload), not isinstance(payload, dict))
+        p = _structured(kind, payload)
+        t, a, b, c = _validate(kind, p, not isinstance(payload, dict))
+        n = len(t)
+        # one array for all (N,3) fields: each field is a view of n rows
+        v = np.array(a + b + (c or []), dtype=np.float64)
+        return _message(
+            pk,
+            p.seq,
+            np.array(t, dtype=np.float64),
+            v[:n],
+            v[n : 2 * n],
+            v[2 * n :] if c is not None else None,
+        )
     if kind == "event":
         return _event(pk.device, _load(payload))
     raise WireError("unknown_key", f"{key!r} is a service output, not an input")
 
 
-def _finish(pk: keys.ParsedKey, p: Any, from_json: bool) -> Message:
-    """The message of a stream payload decoded to ``p`` (its _Imu & co), checked."""
-    t, a, b, c = _validate(pk.kind, p, from_json)
-    n = len(t)
-    # one array for all (N,3) fields: each field is a view of n rows
-    v = np.array([*a, *b, *(c or ())], dtype=np.float64)
-    return _message(
-        pk,
-        p.seq,
-        np.array(t, dtype=np.float64),
-        v[:n],
-        v[n : 2 * n],
-        v[2 * n :] if c is not None else None,
-    )
-
-
-# --------------------------------------------------------------------------- in bulk
-
-Decoded: TypeAlias = tuple[str | None, Message | WireError]
 MALFORMED_LINE = ("malformed_line", "recording line is not {key, payload}")
 
 
 def decode_many(
     items: Iterable[tuple[str, Any]], prefix: str = keys.DEFAULT_PREFIX
 ) -> list[Message | WireError]:
-    """:func:`decode` of each ``(key, payload)``, the error returned instead of raised."""
-    return [m for _, m in decode_with_devices(items, prefix)]
+    """:func:`decode` of each ``(key, payload)``, the error returned instead of raised.
 
-
-def decode_with_devices(
-    items: Iterable[tuple[str, Any]], prefix: str = keys.DEFAULT_PREFIX
-) -> list[Decoded]:
-    """``(device, message or error)`` per ``(key, payload)``: :func:`decode`'s outcome,
-    with the key's device (None for a key without one).
-
-    Per-message Python work dominated an offline analysis: the items are grouped by key
-    (keys repeat) and each group of stream payloads is decoded in bulk
-    (:func:`_decode_structs`); other kinds go through :func:`decode` one by one.
+    Same messages and the same rejections as :func:`decode`, but the arrays of all the
+    batch's stream messages come from two numpy calls, each message's arrays being views
+    of them: per-message array construction dominated an offline analysis.
     """
-    items = items if isinstance(items, list) else list(items)
-    out: list[Decoded | None] = [None] * len(items)
-    for key, idx in _groups(list(map(_FIRST, items))).items():
-        payloads = [items[i][1] for i in idx]
-        pk = _parse_key(key, prefix)
-        if pk is None or pk.kind not in _STREAMS:
-            results = [_decode_one(key, p, prefix) for p in payloads]
-        else:
-            results = _decode_payloads(key, pk, payloads, prefix)
-        device = pk.device if pk is not None else None
-        for i, r in zip(idx, results, strict=True):
-            out[i] = (device, r)
-    return out  # type: ignore[return-value]  # every None was filled in above
-
-
-_FIRST = itemgetter(0)
-
-
-def _groups(values: list[Any]) -> dict[Any, list[int]]:
-    """value -> the positions holding it, in order (values repeat: a few distinct)."""
-    distinct = list(dict.fromkeys(values))
-    if len(distinct) == 1:
-        return {distinct[0]: list(range(len(values)))}
-    index = {v: i for i, v in enumerate(distinct)}
-    codes = np.fromiter(map(index.__getitem__, values), np.intp, len(values))
-    return {v: np.flatnonzero(codes == i).tolist() for v, i in index.items()}
-
-
-def _parse_key(key: str, prefix: str) -> keys.ParsedKey | None:
-    try:
-        return keys.parse(key, prefix)
-    except keys.KeyError_:
-        return None
-
-
-def _decode_one(key: str, payload: Any, prefix: str) -> Message | WireError:
-    try:
-        return decode(key, payload, prefix)
-    except WireError as exc:
-        # returned, not raised: without its traceback, whose frames would otherwise keep
-        # their locals alive until the cyclic collector runs
-        return exc.with_traceback(None)
-
-
-# The bulk decoders' view of a stream payload: _Imu & co with tuples for lists (cheaper
-# to build, the same values). A payload they refuse goes to decode(), whose typed
-# decoders (_DECODERS) give the rejection.
-class _ImuBulk(msgspec.Struct, gc=False):
-    t: tuple[float, ...]
-    gyr: tuple[Vec3, ...]
-    acc: tuple[Vec3, ...]
-    seq: int | None = None
-
-
-class _RobotBulk(msgspec.Struct, gc=False):
-    t: tuple[float, ...]
-    wrist: tuple[Vec3, ...]
-    proximal: tuple[Vec3, ...]
-    elbow: tuple[Vec3, ...] | None = None
-    seq: int | None = None
-
-
-class _CameraBulk(msgspec.Struct, gc=False):
-    t: tuple[float, ...]
-    elbow: tuple[Vec3, ...]
-    wrist: tuple[Vec3, ...]
-    shoulder: tuple[Vec3, ...] | None = None
-    seq: int | None = None
-
-
-_BULK = {
-    "imu": msgspec.json.Decoder(_ImuBulk).decode,
-    "robot": msgspec.json.Decoder(_RobotBulk).decode,
-    "camera": msgspec.json.Decoder(_CameraBulk).decode,
-}
-_JSON_TYPES = {bytes, msgspec.Raw}  # payload types decoded in bulk; others: decode()
-
-
-def _decode_payloads(
-    key: str, pk: keys.ParsedKey, payloads: list[Any], prefix: str
-) -> list[Message | WireError]:
-    """:func:`decode` of stream payloads of one key: in bulk those that the bulk decoder
-    takes (JSON bytes within the size limit, that decode), one by one the others."""
-    dec = _BULK[pk.kind]
-    if set(map(type, payloads)) <= _JSON_TYPES and max(map(len, payloads)) <= MAX_PAYLOAD_BYTES:
+    out: list[Message | WireError | None] = []
+    ts: list[float] = []  # every accepted message's t, concatenated
+    vs: list[Vec3] = []  # and its (N,3) rows, field after field
+    todo: list[tuple[int, keys.ParsedKey, int | None, int, int, int, bool]] = []
+    for key, payload in items:
         try:
-            ps = list(map(dec, payloads))
-        except (msgspec.DecodeError, msgspec.ValidationError):
-            pass  # some payload does not decode: which, below
-        else:
-            return _decode_structs(pk, ps)
-    taken = [_bulk_one(dec, p) for p in payloads]
-    done = iter(_decode_structs(pk, [p for p in taken if p is not None]))
-    return [
-        next(done) if p is not None else _decode_one(key, raw, prefix)
-        for p, raw in zip(taken, payloads, strict=True)
-    ]
-
-
-def _bulk_one(dec: Any, payload: Any) -> Any:
-    """The bulk decoder's struct of one payload; None if it does not take it."""
-    if type(payload) in _JSON_TYPES and len(payload) <= MAX_PAYLOAD_BYTES:
-        with contextlib.suppress(msgspec.DecodeError, msgspec.ValidationError):
-            return dec(payload)
-    return None
-
-
-_GET_T = attrgetter("t")
-_GET_SEQ = attrgetter("seq")
-_GET_ROWS = {k: [attrgetter(f) for f in names if f] for k, names in _VEC_NAMES.items()}
-_ROW = struct.Struct("3d")
-_CLASSES: dict[str, type[ImuMessage | RobotMessage | CameraMessage]] = {
-    "imu": ImuMessage,
-    "robot": RobotMessage,
-    "camera": CameraMessage,
-}
-
-
-def _decode_structs(pk: keys.ParsedKey, ps: list[Any]) -> list[Message | WireError]:
-    """:func:`_finish` of each typed payload of one key, in bulk: :func:`_validate`'s
-    checks on whole columns, each field's numbers copied at once into one array (each
-    message's arrays are views of those). A payload failing a check goes through
-    _finish itself, so that its rejection (the reason) is decode's by construction."""
-    kind = pk.kind
-    m = len(ps)
-    if not m:
-        return []
-    ts = list(map(_GET_T, ps))
-    rows = [list(map(get, ps)) for get in _GET_ROWS[kind]]
-    if len(rows) == 3 and rows[2].count(None) == m:
-        del rows[2]  # the optional field, in none of them
-    nt = np.fromiter(map(len, ts), np.intp, m)
-    counts = [np.fromiter(map(len, r), np.intp, m) for r in rows[:2]]
-    ok = (counts[0] == nt) & (counts[1] == nt) & (nt > 0) & (nt <= MAX_SAMPLES)
-    if len(rows) == 3:  # in some: -1 for those without
-        nc = np.fromiter((len(x) if x is not None else -1 for x in rows[2]), np.intp, m)
-        ok &= (nc == nt) | (nc < 0)
-        counts.append(nc.clip(0))
-    # the floats into numpy: struct's packing is 2-3x faster than numpy's conversions
-    tf = np.empty(int(nt.sum()), np.float64)
-    struct.pack_into(f"{len(tf)}d", tf.data, 0, *chain.from_iterable(ts))
-    fields = [_stack(r) for r in rows]
-    seqs = list(map(_GET_SEQ, ps))
-    ok &= _valid(nt, tf, seqs)
-    n = int(nt[0])
-    views: list[list[Any]]
-    if ok.all() and (nt == n).all() and (len(rows) < 3 or None not in rows[2]):
-        # one shape for all (the usual): views from iterating, in C
-        views = [list(tf.reshape(m, n)), *(list(f.reshape(m, n, 3)) for f in fields)]
-    else:  # slices; the failing messages are replaced below
-        views = [_views(tf, nt), *(_views(f, c) for f, c in zip(fields, counts, strict=True))]
-        if len(rows) == 3:  # None for a message without the optional field
-            views[3] = [
-                v if x is not None else None for v, x in zip(views[3], rows[2], strict=True)
-            ]
-    views += [[None] * m] * (4 - len(views))  # no such field
-    out = _messages(kind, pk, views, seqs)
-    if not ok.all():
-        for j in np.flatnonzero(~ok).tolist():
-            try:
-                out[j] = _finish(pk, ps[j], True)
-            except WireError as exc:
-                out[j] = exc.with_traceback(None)
-    return out
-
-
-def _stack(rows: list[Any]) -> FloatArray:
-    """The (N,3) array of the rows of all the messages (None: none), in order."""
-    data = bytearray().join(starmap(_ROW.pack, chain.from_iterable(filter(None, rows))))
-    if not data:
-        return np.empty((0, 3), np.float64)
-    return np.frombuffer(data, np.float64).reshape(-1, 3)
-
-
-def _views(a: FloatArray, counts: NDArray[np.intp]) -> list[Any]:
-    """Consecutive slices of ``a``, ``counts[j]`` rows for the j-th."""
-    ends = np.cumsum(counts).tolist()
-    return [a[e - k : e] for e, k in zip(ends, counts.tolist(), strict=True)]
-
-
-def _valid(nt: NDArray[np.intp], tf: FloatArray, seqs: list[Any]) -> NDArray[np.bool_]:
-    """Which messages pass :func:`_validate`'s checks of their values: ``t`` strictly
-    increasing, ``seq`` in range (``nt``: their sample counts, ``tf``: all their t's)."""
-    ok = np.ones(len(nt), bool)
-    bad = np.flatnonzero(~(tf[1:] > tf[:-1]))  # pairs not increasing: inside a message?
-    if len(bad):
-        ends = np.cumsum(nt)
-        i = np.searchsorted(ends, bad, side="right")
-        ok[i[i == np.searchsorted(ends, bad + 1, side="right")]] = False
-    if None in seqs or not (min(seqs) >= 0 and max(seqs) < 2**63):
-        ok &= np.fromiter((s is None or 0 <= s < 2**63 for s in seqs), bool, len(seqs))
-    return ok
-
-
-def _messages(kind: str, pk: keys.ParsedKey, views: list[list[Any]], seqs: list[Any]) -> list[Any]:
-    """The messages of these columns (t, then the three (N,3) fields), built in C."""
-    cls = _CLASSES[kind]
-    out: list[Any] = list(map(object.__new__, repeat(cls, len(seqs))))
-    device = repeat(pk.device)
-    columns: tuple[Iterable[Any], ...]
-    if kind == "imu":
-        columns = (device, repeat(pk.segment or "upperarm"), *views[:3], seqs)
-    else:
-        columns = (device, *views, seqs)
-    for setter, values in zip(_SLOTS[cls], columns, strict=True):
-        deque(map(setter, out, values), maxlen=0)  # setter(message, value) for each
-    return out
+            pk = keys.parse(key, prefix)
+            kind = pk.kind
+            if kind not in _STREAMS or isinstance(payload, (dict, str)):
+                out.append(decode(key, payload, prefix))
+                continue
+            p = _structured(kind, payload)
+            t, a, b, c = _validate(kind, p, True)
+        except keys.KeyError_ as exc:
+            out.append(WireError("unknown_key", str(exc)))
+            continue
+        except WireError as exc:
+            # returned, not raised: without its traceback, whose frames (this one and its
+            # lists) would otherwise wait for the cyclic collector
+            out.append(exc.with_traceback(None))
+            continue
+        todo.append((len(out), pk, p.seq, len(ts), len(vs), len(t), c is not None))
+        out.append(None)
+        ts += t
+        vs += a
+        vs += b
+        if c is not None:
+            vs += c
+    if todo:
+        # from flat doubles: numpy's conversion of nested sequences costs ~3x more
+        ta = np.frombuffer(array.array("d", ts), dtype=np.float64)
+        va = np.fromiter(chain.from_iterable(vs), np.float64, 3 * len(vs)).reshape(-1, 3)
+        for i, pk, seq, ti, vi, n, has_c in todo:
+            v2 = vi + 2 * n
+            out[i] = _message(
+                pk,
+                seq,
+                ta[ti : ti + n],
+                va[vi : vi + n],
+                va[vi + n : v2],
+                va[v2 : v2 + n] if has_c else None,
+            )
+    return out  # type: ignore[return-value]  # every None was filled in above
 
 
 def _event(device: str, obj: dict[str, Any]) -> EventMessage:

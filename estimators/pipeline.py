@@ -1269,8 +1269,7 @@ class Pipeline:
         i = 0
         while i < n:
             k = spec[i]
-            nom_i = self._nominal_at(tl[i], tuple(sh_rows[i]), good[i], k)
-            nom_a[i] = nom_i
+            nom_a[i] = self._nominal_at(tl[i], tuple(sh_rows[i]), good[i], k)
             i += 1
             if self._nom_point is not None:  # set for the rest of this spec's rows
                 j = _run_end(spec, i - 1)
@@ -1329,12 +1328,10 @@ class Pipeline:
         offset an assumed length leaves in every shoulder estimate (eq. 12), without
         needing the heading. Out-of-bounds or moving-arm measurements are ignored.
         """
+        if self._arm_length_fixed(k):
+            return self._arm_len
         p = self.params
-        if p.arm_length != "calibrate":
-            return self._arm_len
-        kind, t_e, point = self._specs[k]
-        if kind != "point" or point is None or k == self._arm_spec_done:
-            return self._arm_len
+        _, t_e, point = self._specs[k]
         if self._arm_spec != k:
             self._arm_spec, self._arm_pts = k, []
         if t <= t_e + p.arm_reference_s:
