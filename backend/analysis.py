@@ -14,7 +14,7 @@ import json
 import math
 import zlib
 from collections.abc import Iterable, Iterator, Mapping
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from itertools import islice
 from pathlib import Path
@@ -397,24 +397,44 @@ def decode_stream(
     lines: Iterable[tuple[str | None, Any]], prefix: str = keys.DEFAULT_PREFIX
 ) -> Iterator[tuple[str | None, wire.Message | wire.WireError]]:
     """Decode recording lines; yield ``(device, message or error)`` (device None if unknown)."""
+    for batch, cols in decode_batches(lines, prefix):
+        for dev, item in batch:
+            yield dev, item.message(cols) if isinstance(item, wire.Span) else item
+
+
+Decoded = tuple[str | None, wire.Message | wire.WireError | wire.Span]
+
+
+def decode_batches(
+    lines: Iterable[tuple[str | None, Any]], prefix: str = keys.DEFAULT_PREFIX
+) -> Iterator[tuple[list[Decoded], dict[str, wire.Columns]]]:
+    """:func:`decode_stream` a batch at a time, stream messages left as spans of the
+    batch's columns (:func:`wire.decode_columns`)."""
     it = iter(lines)
-    # batches for wire.decode_many: small, so that few decoded objects are alive at once
-    # for the cyclic collector to scan and promote
+    # batches: small, so that few decoded objects are alive at once for the cyclic
+    # collector to scan and promote
     while chunk := list(islice(it, _DECODE_BATCH)):
-        decoded = iter(wire.decode_many([(k, p) for k, p in chunk if k is not None], prefix))
-        for key, _ in chunk:
-            if key is None:
-                yield None, wire.WireError(*wire.MALFORMED_LINE)
-                continue
-            item = next(decoded)
+        keyed = [(k, p) for k, p in chunk if k is not None]
+        decoded, cols = wire.decode_columns(keyed, prefix)
+        if len(keyed) < len(chunk):  # lines that are not {key, payload}: errors in place
+            items = iter(decoded)
+            decoded = [
+                next(items) if k is not None else wire.WireError(*wire.MALFORMED_LINE)
+                for k, _ in chunk
+            ]
+        out: list[Decoded] = []
+        for (key, _), item in zip(chunk, decoded, strict=True):
             if isinstance(item, wire.WireError):
-                try:
-                    dev: str | None = keys.parse(key, prefix).device
-                except keys.KeyError_:
-                    dev = None
-                yield dev, item
+                dev: str | None = None
+                if key is not None:
+                    with suppress(keys.KeyError_):
+                        dev = keys.parse(key, prefix).device
+                out.append((dev, item))
+            elif isinstance(item, wire.Span):
+                out.append((item.key.device, item))
             else:
-                yield item.device, item
+                out.append((item.device, item))
+        yield out, cols
 
 
 _DECODE_BATCH = 64
@@ -453,20 +473,23 @@ def analyze(
     run: DeviceRun | None = None
     orphan: dict[str, int] = {}
     others: dict[str, int] = {}
-    for dev, item in decode_stream(lines):
-        if run is None and dev is not None and (device is None or dev == device):
-            run = DeviceRun(dev, params)
-        if run is None or dev != run.device:
-            if dev is None:
-                assert isinstance(item, wire.WireError)
-                orphan[item.reason] = orphan.get(item.reason, 0) + 1
+    for batch, cols in decode_batches(lines):
+        for dev, item in batch:
+            if run is None and dev is not None and (device is None or dev == device):
+                run = DeviceRun(dev, params)
+            if run is None or dev != run.device:
+                if dev is None:
+                    assert isinstance(item, wire.WireError)
+                    orphan[item.reason] = orphan.get(item.reason, 0) + 1
+                else:
+                    others[dev] = others.get(dev, 0) + 1
+                continue
+            if isinstance(item, wire.Span):
+                _feed_span(run.pipeline, item, cols)
+            elif isinstance(item, wire.WireError):
+                run.reject(item.reason)
             else:
-                others[dev] = others.get(dev, 0) + 1
-            continue
-        if isinstance(item, wire.WireError):
-            run.reject(item.reason)
-        else:
-            run.pipeline.feed(item)
+                run.pipeline.feed(item)
     if run is None:
         run = DeviceRun(device or "", params)
     for reason, n in orphan.items():
@@ -478,6 +501,19 @@ def analyze(
     if out_dir is not None:
         write_outputs(run, rep, Path(out_dir))
     return run, rep
+
+
+def _feed_span(p: Pipeline, s: wire.Span, cols: dict[str, wire.Columns]) -> None:
+    """``p.feed(s.message(cols))``, without making the message's arrays."""
+    kind = s.key.kind
+    if kind == "imu":
+        k = cols[kind]
+        p.feed_imu_rows(k.t, k.tl, k.a, k.b, s.i0, s.i1, s.seq, s.key.segment or "upperarm")
+    elif kind == "robot":
+        k = cols[kind]
+        p.feed_robot_rows(k.t, k.tl, k.a, k.b, k.c, s.i0, s.i1, s.seq)
+    else:
+        p.feed(s.message(cols))
 
 
 def write_outputs(run: DeviceRun, report: dict[str, Any], out: Path) -> None:

@@ -18,7 +18,7 @@ import operator
 from collections.abc import Iterable
 from dataclasses import dataclass, field, fields
 from itertools import chain
-from typing import Any, TypeAlias
+from typing import Any, NamedTuple, TypeAlias
 
 import msgspec
 import numpy as np
@@ -315,19 +315,59 @@ def decode(
 MALFORMED_LINE = ("malformed_line", "recording line is not {key, payload}")
 
 
-def decode_many(
-    items: Iterable[tuple[str, Any]], prefix: str = keys.DEFAULT_PREFIX
-) -> list[Message | WireError]:
-    """:func:`decode` of each ``(key, payload)``, the error returned instead of raised.
+@dataclass(slots=True)
+class Columns:
+    """One stream kind's payloads of a decoded batch, end to end: ``t`` (N,) s and the
+    kind's (N,3) fields ``a``, ``b`` (IMU: gyr, acc; robot: wrist, proximal; camera: elbow,
+    wrist) and optional ``c`` (robot: elbow; camera: shoulder; NaN rows where a message had
+    none, None if none had it). ``tl`` is ``t`` as floats. Each message is a :class:`Span`."""
 
-    Same messages and the same rejections as :func:`decode`, but the arrays of all the
-    batch's stream messages come from two numpy calls, each message's arrays being views
-    of them: per-message array construction dominated an offline analysis.
+    t: FloatArray
+    tl: list[float]
+    a: FloatArray
+    b: FloatArray
+    c: FloatArray | None
+
+
+class Span(NamedTuple):
+    """A validated stream message as rows ``i0:i1`` of its kind's :class:`Columns` (a
+    tuple: a frozen dataclass's ``__init__`` cost more than decoding the message)."""
+
+    key: keys.ParsedKey
+    seq: int | None
+    i0: int
+    i1: int
+    has_c: bool
+
+    def message(self, cols: dict[str, Columns]) -> Message:
+        """The message :func:`decode` would give (its arrays are views of the columns)."""
+        k = cols[self.key.kind]
+        sl = slice(self.i0, self.i1)
+        return _message(
+            self.key,
+            self.seq,
+            k.t[sl],
+            k.a[sl],
+            k.b[sl],
+            k.c[sl] if self.has_c and k.c is not None else None,
+        )
+
+
+_NAN3 = (math.nan, math.nan, math.nan)
+
+
+def decode_columns(
+    items: Iterable[tuple[str, Any]], prefix: str = keys.DEFAULT_PREFIX
+) -> tuple[list[Message | WireError | Span], dict[str, Columns]]:
+    """:func:`decode` of each ``(key, payload)``, the error returned instead of raised, and
+    every valid stream payload (JSON bytes) left as a :class:`Span` of its kind's columns.
+
+    The columns come from a few numpy calls per kind: per-message array construction
+    dominated an offline analysis.
     """
-    out: list[Message | WireError | None] = []
-    ts: list[float] = []  # every accepted message's t, concatenated
-    vs: list[Vec3] = []  # and its (N,3) rows, field after field
-    todo: list[tuple[int, keys.ParsedKey, int | None, int, int, int, bool]] = []
+    out: list[Message | WireError | Span] = []
+    # per kind: every accepted message's t, concatenated, and its rows of a, b and c
+    acc: dict[str, tuple[list[float], list[Vec3], list[Vec3], list[Vec3]]] = {}
     for key, payload in items:
         try:
             pk = keys.parse(key, prefix)
@@ -345,28 +385,41 @@ def decode_many(
             # lists) would otherwise wait for the cyclic collector
             out.append(exc.with_traceback(None))
             continue
-        todo.append((len(out), pk, p.seq, len(ts), len(vs), len(t), c is not None))
-        out.append(None)
+        ts, ra, rb, rc = acc.get(kind) or acc.setdefault(kind, ([], [], [], []))
+        i0 = len(ts)
         ts += t
-        vs += a
-        vs += b
+        ra += a
+        rb += b
         if c is not None:
-            vs += c
-    if todo:
-        # from flat doubles: numpy's conversion of nested sequences costs ~3x more
-        ta = np.frombuffer(array.array("d", ts), dtype=np.float64)
-        va = np.fromiter(chain.from_iterable(vs), np.float64, 3 * len(vs)).reshape(-1, 3)
-        for i, pk, seq, ti, vi, n, has_c in todo:
-            v2 = vi + 2 * n
-            out[i] = _message(
-                pk,
-                seq,
-                ta[ti : ti + n],
-                va[vi : vi + n],
-                va[vi + n : v2],
-                va[v2 : v2 + n] if has_c else None,
-            )
-    return out  # type: ignore[return-value]  # every None was filled in above
+            rc += [_NAN3] * (i0 - len(rc))  # NaN rows for the messages without one so far
+            rc += c
+        elif rc:  # aligned from the first message with one on
+            rc += [_NAN3] * len(t)
+        out.append(Span(pk, p.seq, i0, len(ts), c is not None))
+    cols: dict[str, Columns] = {}
+    for name, (ts, ra, rb, rc) in acc.items():
+        n = len(ts)
+        rc += [_NAN3] * (n - len(rc)) if rc else []
+        cols[name] = Columns(
+            # from flat doubles: numpy's conversion of nested sequences costs ~3x more
+            np.frombuffer(array.array("d", ts), dtype=np.float64),
+            ts,
+            np.fromiter(chain.from_iterable(ra), np.float64, 3 * n).reshape(n, 3),
+            np.fromiter(chain.from_iterable(rb), np.float64, 3 * n).reshape(n, 3),
+            np.fromiter(chain.from_iterable(rc), np.float64, 3 * n).reshape(n, 3)
+            if rc
+            else None,
+        )
+    return out, cols
+
+
+def decode_many(
+    items: Iterable[tuple[str, Any]], prefix: str = keys.DEFAULT_PREFIX
+) -> list[Message | WireError]:
+    """:func:`decode` of each ``(key, payload)``, the error returned instead of raised: the
+    spans of :func:`decode_columns` as messages (same messages, same rejections)."""
+    out, cols = decode_columns(items, prefix)
+    return [x.message(cols) if isinstance(x, Span) else x for x in out]
 
 
 def _event(device: str, obj: dict[str, Any]) -> EventMessage:

@@ -19,6 +19,8 @@ Angles are radians inside, degrees in parameters.
 
 from __future__ import annotations
 
+import functools
+import itertools
 import math
 from dataclasses import dataclass, field
 from typing import Literal, TypeAlias
@@ -27,6 +29,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 Array: TypeAlias = NDArray[np.float64]
+IndexArray: TypeAlias = NDArray[np.intp]
+_BOOL = np.dtype(np.bool_)
 Method = Literal["paper", "improved"]
 
 
@@ -98,6 +102,29 @@ class Window:
     cl: Array | None = None  # (n, 18) sensor axes x, y, z in I (9), their 2nd derivative (9)
 
 
+def _all_true(v: Array) -> bool:
+    """Whether the boolean mask ``v`` selects every sample (then a view replaces the copy)."""
+    return v.dtype == _BOOL and bool(v.all())
+
+
+def _rows(x: Array, v: Array, all_valid: bool) -> Array:
+    """``x[v]``, without the copy when ``v`` is all True (same values, same C layout). The
+    result may then be the caller's own buffer: it must only be read."""
+    out: Array = np.ascontiguousarray(x) if all_valid else x[v]
+    return out
+
+
+def _rms_horizontal(b: Array) -> float:
+    """``float(np.sqrt(np.mean(np.sum(b[:, :2] ** 2, axis=1))))`` of a non-empty ``b``, m/s².
+
+    A sum over an axis of length 2 is its two terms added in order (numpy starts from −0.0
+    or 0.0, which leave a square unchanged), so ``b_x² + b_y²`` is the same array at an
+    eighth of the cost; the mean is the same pairwise sum divided by the same count.
+    """
+    h2 = b[:, 0] ** 2 + b[:, 1] ** 2
+    return math.sqrt(float(np.add.reduce(h2)) / len(h2))
+
+
 def wrap(x: float) -> float:
     """Angle to (−π, π]."""
     return math.atan2(math.sin(x), math.cos(x))
@@ -149,20 +176,54 @@ def motion_subwindows(w: Window, params: HeadingParams, t_end: float) -> int:
     The sphere test uses the largest distance from the sub-window's centroid, which is
     within a few percent of the minimal enclosing sphere for arm-like paths.
     """
+    return _motion_subwindows(w.t, w.p, w.valid, _all_true(w.valid), params, t_end)
+
+
+def _motion_subwindows(
+    t: Array, pos: Array, valid: Array, all_valid: bool, params: HeadingParams, t_end: float
+) -> int:
+    """:func:`motion_subwindows` on the window's arrays (``all_valid`` from :func:`_all_true`).
+
+    The valid samples of all sub-windows are taken in one copy (none if all are valid), the
+    distances and maxima in one call each. What sets the bits stays as it was: one
+    ``np.add.reduce`` per centroid (what ``.mean`` runs; ``np.add.reduceat`` adds in another
+    order) and ``einsum`` for the squared distances (its per-row order is not ``x²+y²+z²``).
+    """
     sub = params.window_s / params.n_subwindows
     edges = t_end - params.window_s + sub * np.arange(params.n_subwindows + 1)
-    idx = np.searchsorted(w.t, edges, side="right")
-    count = 0
-    limit = 0.25 * params.motion_diameter_m * params.motion_diameter_m  # radius², m²
+    idx = np.searchsorted(t, edges, side="right")
+    lo, hi = int(idx[0]), int(idx[-1])
+    if all_valid:
+        p = np.ascontiguousarray(pos[lo:hi])
+        bounds: list[int] = (idx - lo).tolist()
+    else:
+        v = valid[lo:hi]
+        p = pos[lo:hi][v]
+        csum = np.zeros(hi - lo + 1, dtype=np.intp)
+        np.cumsum(v, out=csum[1:])
+        bounds = csum[idx - lo].tolist()  # valid samples before each edge
+    starts: list[int] = []
+    sizes: list[int] = []
+    centroids: list[Array] = []
     for i in range(params.n_subwindows):
-        sl = slice(idx[i], idx[i + 1])
-        p = w.p[sl][w.valid[sl]]
-        if p.shape[0] < 2:
+        i0, m = bounds[i], bounds[i + 1] - bounds[i]
+        if m < 2:
             continue
-        q = p - p.mean(axis=0)
-        if float(np.einsum("ij,ij->i", q, q).max()) > limit:
-            count += 1
-    return count
+        starts.append(i0)
+        sizes.append(m)
+        centroids.append(np.add.reduce(p[i0 : i0 + m], axis=0) / m)  # = .mean(axis=0)
+    if not sizes:
+        return 0
+    if len(sizes) == params.n_subwindows:
+        pts = p[: bounds[-1]]  # the sub-windows tile the range
+    else:
+        pts = np.concatenate([p[s : s + m] for s, m in zip(starts, sizes, strict=True)])
+    q = pts - np.repeat(np.asarray(centroids), sizes, axis=0)
+    d2 = np.einsum("ij,ij->i", q, q)
+    limit = 0.25 * params.motion_diameter_m * params.motion_diameter_m  # radius², m²
+    # the largest per sub-window (exact and NaN-propagating, like ndarray.max)
+    first = list(itertools.accumulate(sizes[:-1], initial=0))
+    return int(np.count_nonzero(np.maximum.reduceat(d2, first) > limit))
 
 
 def _grid(center: float, half: float, step: float) -> Array:
@@ -173,9 +234,14 @@ def _grid(center: float, half: float, step: float) -> Array:
 
 def update_paper(state: HeadingState, w: Window, params: HeadingParams, t: float) -> bool:
     """One scheduled update of §3.2.2 (eqs. 6–8). Returns whether the window counted."""
-    a, b = w.a[w.valid], w.b[w.valid]
-    state.excitation = float(np.sqrt(np.mean(np.sum(b[:, :2] ** 2, axis=1)))) if len(b) else 0.0
-    if motion_subwindows(w, params, t) < params.min_motion_subwindows or len(a) == 0:
+    v = w.valid
+    all_valid = _all_true(v)
+    a, b = _rows(w.a, v, all_valid), _rows(w.b, v, all_valid)
+    state.excitation = _rms_horizontal(b) if len(b) else 0.0
+    if (
+        _motion_subwindows(w.t, w.p, v, all_valid, params, t) < params.min_motion_subwindows
+        or len(a) == 0
+    ):
         return False
     sc, ss = sums(a, b)
     if state.delta is None or (not state.converged and state.n_counted < params.n_two_step):
@@ -190,7 +256,7 @@ def update_paper(state: HeadingState, w: Window, params: HeadingParams, t: float
     state.history.append(d)
     state.delta, state.t_update = d, t
     state.std = math.hypot(
-        residual_std(a, b, d, float(np.ptp(w.t[w.valid])), params),
+        residual_std(a, b, d, float(np.ptp(_rows(w.t, v, all_valid))), params),
         math.radians(params.fine_step_deg) / math.sqrt(12.0),
     )
     if not state.converged and len(state.history) > params.converge_count:
@@ -211,13 +277,23 @@ def fit_drift(
     (residual variance per sample, corrected for the low-pass's sample correlation).
     Returns ``(δ0, ρ, std δ0, std ρ)`` in rad and rad/s.
     """
-    sck = a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]
-    ssk = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return _fit_drift(a, b, tau, rate0, params, n_iter, float(np.sum(b[:, :2] ** 2)))
+
+
+def _fit_drift(
+    a: Array, b: Array, tau: Array, rate0: float, params: HeadingParams, n_iter: int, eb2: float
+) -> tuple[float, float, float, float]:
+    """:func:`fit_drift` given ``eb2 = np.sum(b[:, :2] ** 2)`` (fixed while ``a`` is re-corrected).
+    ``x.sum()`` is ``np.sum(x)`` (the same reduction) without the wrapper."""
+    a0, a1, b0, b1 = a[:, 0], a[:, 1], b[:, 0], b[:, 1]
+    sck = a0 * b0 + a1 * b1
+    ssk = a0 * b1 - a1 * b0
     n = len(sck)
     # Constant-heading solution on data de-rotated by the prior drift: the starting point.
-    c0, s0 = np.cos(rate0 * tau), np.sin(rate0 * tau)
-    d0 = math.atan2(float(np.sum(ssk * c0 - sck * s0)), float(np.sum(sck * c0 + ssk * s0)))
-    e2 = float(np.sum(a[:, :2] ** 2) + np.sum(b[:, :2] ** 2))
+    rt = rate0 * tau
+    c0, s0 = np.cos(rt), np.sin(rt)
+    d0 = math.atan2(float((ssk * c0 - sck * s0).sum()), float((sck * c0 + ssk * s0).sum()))
+    e2 = float(np.sum(a[:, :2] ** 2) + eb2)
     span = float(tau[-1] - tau[0]) if n > 1 else 0.0
     n_eff = max(1.0, span * params.effective_rate_hz)
     sig_rho = math.radians(params.drift_prior_std_dps)
@@ -258,7 +334,15 @@ def estimate_lag(w: Window, params: HeadingParams, dt: float) -> tuple[float, fl
     minimum is not clear.
     """
     v = w.valid
-    t, a, b = w.t[v], w.a[v], w.b[v]
+    all_valid = _all_true(v)
+    t, a, b = _rows(w.t, v, all_valid), _rows(w.a, v, all_valid), _rows(w.b, v, all_valid)
+    return _estimate_lag(t, a, b, params, dt)
+
+
+def _estimate_lag(
+    t: Array, a: Array, b: Array, params: HeadingParams, dt: float
+) -> tuple[float, float]:
+    """:func:`estimate_lag` on the valid samples."""
     if len(t) < 20:
         return 0.0, 0.0
     lags = np.arange(-params.max_lag_s, params.max_lag_s + 1e-9, dt / 2.0)
@@ -292,60 +376,101 @@ def _fit_with_sensor_errors(
     cl: Array,
     rate0: float,
     params: HeadingParams,
-) -> tuple[float, float, float, Array]:
+) -> tuple[float, float, float]:
     """Heading and drift jointly with the accelerometer bias and the lever-arm error.
 
     A sensor-frame accelerometer bias β appears in frame I as ``Σ_j β_j c_j(t)`` (c_j the
     sensor axes in I, high-passed like the 6D filter's levelling), and an error Δr of the
     assumed IMU→elbow vector as ``Σ_j Δr_j c̈_j(t)``; both are linear in their unknowns once
     δ(t) is fixed, so the fit alternates the drift fit with a regularised least squares.
+    Returns ``(δ0, ρ, std δ0)``; the fitted errors go to ``state``.
     """
     n = len(a)
     jac = _jacobian(cl)
     jtj = jac.T @ jac
-    prior = np.concatenate(
-        (np.full(3, 1.0 / params.acc_bias_prior**2), np.full(3, 1.0 / params.lever_prior**2))
-    )
+    prior = _prior_diag(params.acc_bias_prior, params.lever_prior)
     x = np.concatenate((state.acc_bias, state.lever_error))
     span = float(tau[-1] - tau[0]) if n > 1 else 0.0
     n_eff = max(1.0, span * params.effective_rate_hz)
+    eb2 = float(np.sum(b[:, :2] ** 2))
     d0, rate, sd = 0.0, rate0, math.inf
     # once converged the previous window's errors are a warm start: one alternation is enough
     for _ in range(1 if state.converged else params.sensor_fit_iterations):
-        ac = a + (jac @ x).reshape(n, 3)
-        d0, rate, sd, _ = fit_drift(ac, b, tau, rate0, params, n_iter=3)
+        jx = jac @ x  # used twice (the same product, so the same bits)
+        ac = a + jx.reshape(n, 3)
+        d0, rate, sd, _ = _fit_drift(ac, b, tau, rate0, params, 3, eb2)
         # residual in frame I: Rz(−δ_k) b_k − a_k = jac_k x + noise
-        y = (_rotate_z(-(d0 + rate * tau), b) - a).reshape(-1)
-        r = y - jac @ x
+        y = _rotate_z_minus(-(d0 + rate * tau), b, a).reshape(-1)
+        r = y - jx
         var = max(float(r @ r) / (3 * n), 1e-8) * n / n_eff
-        x = np.asarray(np.linalg.solve(jtj / var + np.diag(prior), (jac.T @ y) / var), np.float64)
+        x = np.asarray(np.linalg.solve(jtj / var + prior, (jac.T @ y) / var), np.float64)
     state.acc_bias, state.lever_error = x[:3].copy(), x[3:].copy()
-    return d0, rate, sd, a + (jac @ x).reshape(n, 3)
+    return d0, rate, sd
+
+
+@functools.lru_cache(maxsize=8)
+def _prior_diag(acc_bias_prior: float, lever_prior: float) -> Array:
+    """``diag`` of the sensor errors' prior information (read-only: it is shared)."""
+    prior = np.concatenate((np.full(3, 1.0 / acc_bias_prior**2), np.full(3, 1.0 / lever_prior**2)))
+    out = np.diag(prior)
+    out.setflags(write=False)
+    return out
 
 
 def _jacobian(cl: Array) -> Array:
     """(3n, 6): how the accelerometer bias and the lever error enter the elbow acceleration,
     ``a_true ≈ a + jac · [β, Δr]``, rows sample-major (x, y, z of each sample)."""
     n = len(cl)
-    c = cl[:, :9].reshape(n, 3, 3).transpose(0, 2, 1)
-    ldd = cl[:, 9:].reshape(n, 3, 3).transpose(0, 2, 1)
-    out: Array = np.concatenate((-c, ldd), axis=2).reshape(3 * n, 6)
-    return out
+    # np.concatenate((-c, ldd), axis=2) with c, ldd = cl[:, :9], cl[:, 9:] as (n, 3, 3)
+    # transposed, written in place and iterated sample-innermost (order="C" on (3, 6, n)
+    # views): numpy's default order runs 3-element inner loops, 3n of them per copy.
+    out = np.empty((n, 3, 6), dtype=np.result_type(cl))
+    dst = out.transpose(1, 2, 0)
+    np.negative(cl[:, :9].reshape(n, 3, 3).transpose(2, 1, 0), out=dst[:, :3], order="C")
+    np.positive(cl[:, 9:].reshape(n, 3, 3).transpose(2, 1, 0), out=dst[:, 3:], order="C")
+    jac: Array = out.reshape(3 * n, 6)
+    return jac
 
 
 def _delay(t: Array, x: Array, lag: float) -> Array:
     """``x`` (n, c) sampled at ``t − lag`` by linear interpolation (held at the ends)."""
+    return _delay_apply(x, *_delay_index(t, lag))
+
+
+def _delay_index(t: Array, lag: float) -> tuple[IndexArray, IndexArray, Array]:
+    """The interpolation of :func:`_delay`: ``(i0, i1, w)``, ``w`` as a column (n, 1)."""
     s = np.clip(t - lag, t[0], t[-1])
     i1 = np.clip(np.searchsorted(t, s, side="left"), 1, len(t) - 1)
     i0 = i1 - 1
     w = ((s - t[i0]) / (t[i1] - t[i0]))[:, None]
-    out: Array = x[i0] + w * (x[i1] - x[i0])
+    return i0, i1, w
+
+
+def _delay_apply(x: Array, i0: IndexArray, i1: IndexArray, w: Array) -> Array:
+    """``x[i0] + w * (x[i1] - x[i0])`` with the same operations in the same operand order,
+    in two buffers instead of five (fresh arrays of this size are slow to allocate here)."""
+    out: Array = np.take(x, i0, axis=0)
+    dx = np.take(x, i1, axis=0)
+    np.subtract(dx, out, out=dx)
+    np.multiply(w, dx, out=dx)
+    np.add(out, dx, out=out)
     return out
 
 
 def _rotate_z(delta: Array, v: Array) -> Array:
     c, s = np.cos(delta), np.sin(delta)
     return np.stack((c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1], v[:, 2]), axis=1)
+
+
+def _rotate_z_minus(delta: Array, v: Array, u: Array) -> Array:
+    """``_rotate_z(delta, v) - u`` (n, 3), each column written once into the result."""
+    c, s = np.cos(delta), np.sin(delta)
+    v0, v1 = v[:, 0], v[:, 1]
+    out = np.empty((len(v), 3), dtype=np.result_type(c, v, u))
+    np.subtract(c * v0 - s * v1, u[:, 0], out=out[:, 0])
+    np.subtract(s * v0 + c * v1, u[:, 1], out=out[:, 1])
+    np.subtract(v[:, 2], u[:, 2], out=out[:, 2])
+    return out
 
 
 def update_improved(
@@ -356,20 +481,28 @@ def update_improved(
     The window's data describe the heading ``lag_s`` earlier than their time stamps, so the
     estimate is carried forward by the fitted drift. Returns whether the window counted.
     """
-    a, b, tau = w.a[w.valid], w.b[w.valid], w.t[w.valid] - t
-    recent = tau > -params.window_s
-    excitation = (
-        float(np.sqrt(np.mean(np.sum(b[recent, :2] ** 2, axis=1)))) if np.any(recent) else 0.0
-    )
+    v = w.valid
+    all_valid = _all_true(v)
+    # views instead of copies when every sample is valid: nothing below writes into them
+    a, b, ts = _rows(w.a, v, all_valid), _rows(w.b, v, all_valid), _rows(w.t, v, all_valid)
+    tau = ts - t
+    in_recent = tau > -params.window_s
+    # the last ``window_s`` is a suffix of the (sorted) window: a slice when it is one
+    k = int(np.argmax(in_recent)) if len(in_recent) else 0
+    if len(in_recent) and in_recent[k] and in_recent[k:].all():
+        excitation = _rms_horizontal(b[k:])
+    elif np.any(in_recent):
+        excitation = _rms_horizontal(b[in_recent])
+    else:
+        excitation = 0.0
     state.excitation = excitation
     if (
         len(a) < 2
         or excitation < params.min_excitation
-        or motion_subwindows(w, params, t) < params.min_motion_subwindows
+        or _motion_subwindows(w.t, w.p, v, all_valid, params, t) < params.min_motion_subwindows
     ):
         return False
-    v = w.valid
-    cl = w.cl[v] if w.cl is not None else None
+    cl = _rows(w.cl, v, all_valid) if w.cl is not None else None
     if params.estimate_lag and (state.n_counted % params.lag_every == 0 or not state.converged):
         dt = float(np.median(np.diff(w.t))) if len(w.t) > 1 else 0.04
         k = int(np.searchsorted(w.t, t - params.window_s, side="right"))
@@ -379,8 +512,15 @@ def update_improved(
             # uncorrected lever error distorts the features and shows up as a false lag
             x = np.concatenate((state.acc_bias, state.lever_error))
             a_tail = a_tail + (_jacobian(w.cl[k:]) @ x).reshape(-1, 3)
-        tail = Window(w.t[k:], a_tail, w.b[k:], w.p[k:], w.valid[k:])
-        lag, weight = estimate_lag(tail, params, dt)
+        v_tail = v[k:]
+        tail_valid = all_valid or _all_true(v_tail)
+        lag, weight = _estimate_lag(
+            _rows(w.t[k:], v_tail, tail_valid),
+            _rows(a_tail, v_tail, tail_valid),
+            _rows(w.b[k:], v_tail, tail_valid),
+            params,
+            dt,
+        )
     else:
         lag, weight = 0.0, 0.0
     if params.estimate_lag:
@@ -389,13 +529,14 @@ def update_improved(
             state.lag = (state.lag * state.lag_weight + lag * weight) / (state.lag_weight + weight)
             state.lag_weight = min(state.lag_weight + weight, 50.0 * weight)
         if state.lag != 0.0:
-            ts = w.t[v]
-            ac = np.concatenate((a, cl), axis=1) if cl is not None else a
-            ac = _delay(ts, ac, state.lag)
-            a, cl = ac[:, :3], (ac[:, 3:] if cl is not None else None)
+            # a and cl delayed apart (the same indices and weights as one concatenated array)
+            i0, i1, wd = _delay_index(ts, state.lag)
+            a = _delay_apply(a, i0, i1, wd)
+            if cl is not None:
+                cl = _delay_apply(cl, i0, i1, wd)
     rate0 = state.rate if state.converged else 0.0
     if params.estimate_sensor_errors and cl is not None and np.any(cl):
-        d0, rate, sd, a = _fit_with_sensor_errors(state, a, b, tau, cl, rate0, params)
+        d0, rate, sd = _fit_with_sensor_errors(state, a, b, tau, cl, rate0, params)
     else:
         d0, rate, sd, _ = fit_drift(a, b, tau, rate0, params)
     d = wrap(d0 + rate * lag_s)

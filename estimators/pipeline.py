@@ -249,14 +249,6 @@ class _Stream:
         return True
 
 
-def _run_end(values: Sequence[int], i: int) -> int:
-    """End of the run of equal values starting at ``i``."""
-    v, j, n = values[i], i + 1, len(values)
-    while j < n and values[j] == v:
-        j += 1
-    return j
-
-
 # ------------------------------------------------------------------------------ stage 1: IMU
 
 _FEW_SAMPLES = 8  # up to this many samples per piece, per-sample work in Python floats
@@ -554,8 +546,14 @@ class _RobotStage:
     def __init__(self, p: PipelineParams) -> None:
         self.p = p
         self.buf = RowBuffer(5)  # t, segment id, p_E (3)
+        self.tail: list[tuple[float, ...]] = []  # rows not yet in buf (one by one: cheaper)
         self.tl: list[float] = []
         self.seg = 0
+
+    def _flush(self) -> None:
+        if self.tail:
+            self.buf.append(np.array(self.tail, dtype=np.float64))
+            self.tail = []
 
     def append(self, s: list[float], p_e: Any, q: Quality) -> None:
         """Samples at physical times ``s``; ``p_e`` (n, 3) array or n float triples."""
@@ -576,9 +574,9 @@ class _RobotStage:
             prev = x
         self.seg = seg
         if isinstance(p_e, list):
-            for x, g, e in zip(s, segs, p_e, strict=True):
-                self.buf.push((x, g, *e))
+            self.tail.extend((x, g, *e) for x, g, e in zip(s, segs, p_e, strict=True))
         else:
+            self._flush()
             rows = np.empty((len(s), 5))
             rows[:, 0] = s
             rows[:, 1] = segs
@@ -590,6 +588,7 @@ class _RobotStage:
         n = len(self.tl)
         if n < 2:
             return np.zeros(len(g), bool), np.full((len(g), 3), np.nan)
+        self._flush()
         v = self.buf.view()
         t, segid, p_e = np.ascontiguousarray(v[:, 0]), v[:, 1], v[:, 2:5]
         i1 = np.clip(np.searchsorted(t, g, side="left"), 1, n - 1)
@@ -601,6 +600,7 @@ class _RobotStage:
     def trim(self, t_keep: float) -> None:
         i = max(0, bisect.bisect_left(self.tl, t_keep) - 2)
         if i > 0:
+            self._flush()
             self.buf.drop(i)
             del self.tl[:i]
 
@@ -764,6 +764,12 @@ class Pipeline:
         # messages fed since the last poll
         self._imu_pending: list[tuple[Array, Array, Array]] = []
         self._robot_pending: list[tuple[Array, Array, Array, Array | None]] = []
+        # consecutive rows fed by feed_*_rows, not yet cut out as one pending piece:
+        # [t, gyr, acc, i0, i1] and [t, wrist, proximal, elbow, i0, i1]
+        self._imu_run: list[Any] | None = None
+        self._robot_run: list[Any] | None = None
+        self._cuff_src: tuple[Array, Array] | None = None  # arrays _cuff_bad describes
+        self._cuff_bad: list[int] = []
         self._imu_frontier = -math.inf  # last IMU stamp fed
         self._robot_frontier = -math.inf
         # rows: robot samples in order; decided[i] = (with_imu, nominal_spec)
@@ -773,7 +779,10 @@ class Pipeline:
         # has reached the row, else its prediction starts there)
         self._decisions: list[tuple[bool, int, float]] = []
         self._n_done = 0
-        self._rowbuf = RowBuffer(9)  # wrist, p_E, x_C of the robot samples not yet emitted
+        # wrist, p_E, x_C of the robot samples not yet emitted: float tuples while all came
+        # one by one (the live case: no numpy calls per row), else a matrix; one is empty
+        self._rowq: list[tuple[float, ...]] = []
+        self._rowbuf = RowBuffer(9)
         # heading
         self._hstate = hd.HeadingState()
         self._hseg = 0
@@ -857,20 +866,59 @@ class Pipeline:
     def feed_imu(
         self, t: Array, gyr: Array, acc: Array, seq: int | None = None, segment: str = "upperarm"
     ) -> bool:
+        # (pending messages hold no Python lists: in a batch they would be many thousand
+        # objects for the garbage collector to walk again and again)
+        if not self._admit_imu(float(t[0]), float(t[-1]), len(t), seq, segment):
+            return False
+        self._close_imu_run()
+        self._imu_pending.append((t, gyr, acc))
+        self._decide()
+        return True
+
+    def feed_imu_rows(
+        self,
+        t: Array,
+        tl: Sequence[float],
+        gyr: Array,
+        acc: Array,
+        i0: int,
+        i1: int,
+        seq: int | None = None,
+        segment: str = "upperarm",
+    ) -> bool:
+        """:meth:`feed_imu` of rows ``i0:i1`` of arrays that hold many messages end to end
+        (``tl``: ``t`` as floats). The same result as
+        ``feed_imu(t[i0:i1], gyr[i0:i1], acc[i0:i1], seq, segment)``, but consecutive
+        messages stay one piece: a batch's poll then joins a few pieces, not ~10^4."""
+        if not self._admit_imu(tl[i0], tl[i1 - 1], i1 - i0, seq, segment):
+            return False
+        run = self._imu_run
+        if run is not None and run[0] is t and run[4] == i0:
+            run[4] = i1
+        else:
+            self._close_imu_run()
+            self._imu_run = [t, gyr, acc, i0, i1]
+        self._decide()
+        return True
+
+    def _admit_imu(self, t0: float, t1: float, n: int, seq: int | None, segment: str) -> bool:
         if segment != "upperarm":  # forearm/trunk IMUs are for later estimators
             self.quality.ignored[f"imu_{segment}"] = (
                 self.quality.ignored.get(f"imu_{segment}", 0) + 1
             )
             return False
-        # (pending messages hold no Python lists: in a batch they would be many thousand
-        # objects for the garbage collector to walk again and again)
-        if not self._imu_stream.admit(float(t[0]), seq, self.quality):
+        if not self._imu_stream.admit(t0, seq, self.quality):
             return False
-        self._imu_stream.last_t = self._imu_frontier = float(t[-1])
-        self._imu_pending.append((t, gyr, acc))
-        self.quality.imu_samples += len(t)
-        self._decide()
+        self._imu_stream.last_t = self._imu_frontier = t1
+        self.quality.imu_samples += n
         return True
+
+    def _close_imu_run(self) -> None:
+        run = self._imu_run
+        if run is not None:
+            t, gyr, acc, i0, i1 = run
+            self._imu_pending.append((t[i0:i1], gyr[i0:i1], acc[i0:i1]))
+            self._imu_run = None
 
     def feed_robot(
         self,
@@ -890,12 +938,60 @@ class Pipeline:
             if x * x + y * y + z * z <= 1e-12:
                 self.quality.reject("coincident_cuffs")
                 return False
-        self._robot_stream.last_t = self._robot_frontier = tl[-1]
+        self._close_robot_run()
         self._robot_pending.append((t, wrist, proximal, elbow))
+        self._accept_robot(tl)
+        return True
+
+    def feed_robot_rows(
+        self,
+        t: Array,
+        tl: Sequence[float],
+        wrist: Array,
+        proximal: Array,
+        elbow: Array | None,
+        i0: int,
+        i1: int,
+        seq: int | None = None,
+    ) -> bool:
+        """:meth:`feed_robot` of rows ``i0:i1`` (as :meth:`feed_imu_rows`). ``elbow``: NaN
+        rows for messages without one (the cuffs' elbow is used there, as for None)."""
+        if not self._robot_stream.admit(tl[i0], seq, self.quality):
+            return False
+        if self._cuff_src is None or not (
+            self._cuff_src[0] is wrist and self._cuff_src[1] is proximal
+        ):
+            # the same arithmetic as feed_robot's loop, for all the rows at once
+            d = wrist - proximal
+            x, y, z = d[:, 0], d[:, 1], d[:, 2]
+            self._cuff_bad = np.flatnonzero(x * x + y * y + z * z <= 1e-12).tolist()
+            self._cuff_src = (wrist, proximal)
+        j = bisect.bisect_left(self._cuff_bad, i0)
+        if j < len(self._cuff_bad) and self._cuff_bad[j] < i1:
+            self.quality.reject("coincident_cuffs")
+            return False
+        run = self._robot_run
+        if run is not None and run[0] is t and run[3] is elbow and run[5] == i0:
+            run[5] = i1
+        else:
+            self._close_robot_run()
+            self._robot_run = [t, wrist, proximal, elbow, i0, i1]
+        self._accept_robot(tl[i0:i1])
+        return True
+
+    def _accept_robot(self, tl: Sequence[float]) -> None:
+        self._robot_stream.last_t = self._robot_frontier = tl[-1]
         self._row_t.extend(tl)
         self.quality.robot_samples += len(tl)
         self._decide()
-        return True
+
+    def _close_robot_run(self) -> None:
+        run = self._robot_run
+        if run is not None:
+            t, wrist, prox, elbow, i0, i1 = run
+            e = None if elbow is None else elbow[i0:i1]
+            self._robot_pending.append((t[i0:i1], wrist[i0:i1], prox[i0:i1], e))
+            self._robot_run = None
 
     def feed_event(self, t: float, etype: str, point: Array | None = None) -> bool:
         if etype == "shoulder_reference" and point is not None:
@@ -984,6 +1080,8 @@ class Pipeline:
 
     def poll(self) -> Output:
         """Run everything that is ready; return the new rows and feedback."""
+        self._close_imu_run()
+        self._close_robot_run()
         if self._imu_pending:
             pend, self._imu_pending = self._imu_pending, []
             if len(pend) == 1:
@@ -1110,7 +1208,10 @@ class Pipeline:
                 pe = (p[0] - lp * xc[0], p[1] - lp * xc[1], p[2] - lp * xc[2])
                 if el is not None:
                     pe = tuple(e if math.isfinite(e) else v for e, v in zip(el[j], pe, strict=True))
-                self._rowbuf.push((*w, *pe, *xc))
+                if len(self._rowbuf):
+                    self._rowbuf.push((*w, *pe, *xc))
+                else:
+                    self._rowq.append((*w, *pe, *xc))
                 pes.append(pe)
             self._robot.append([x - off for x in tl] if off else tl, pes, self.quality)
             return
@@ -1120,6 +1221,9 @@ class Pipeline:
         if elbow is not None:
             pe_v = tuple(np.where(np.isfinite(elbow[:, i]), elbow[:, i], pe_v[i]) for i in range(3))
         block = np.column_stack((wrist, *pe_v, *xc_v))
+        if self._rowq:
+            self._rowbuf.append(np.array(self._rowq, dtype=np.float64))
+            self._rowq = []
         self._rowbuf.append(block)
         self._robot.append((t - off).tolist(), block[:, 3:6], self.quality)
 
@@ -1135,8 +1239,14 @@ class Pipeline:
         n = hi - lo
         t = self._row_t[lo:hi]
         dec = self._decisions[lo:hi]
-        block = self._rowbuf.view()[:n]  # valid until the next append (none before return)
-        self._rowbuf.drop(n)
+        rq: list[tuple[float, ...]] | None = None
+        if self._rowq:  # all waiting rows are here
+            rq = self._rowq[:n]
+            del self._rowq[:n]
+            block = None
+        else:
+            block = self._rowbuf.view()[:n]  # valid until the next append (none before return)
+            self._rowbuf.drop(n)
         # compensation rule (§3.4); segment first: a completed cycle sets the tolerated
         # duration from its end on
         boundaries: list[float]
@@ -1146,7 +1256,8 @@ class Pipeline:
             flat: list[float] = []
             boundaries, disp = [], []
             seg = self._segmenter
-            for tj, dj, rj in zip(t, dec, block.tolist(), strict=True):
+            src: list[Any] = block.tolist() if block is not None else (rq or [])
+            for tj, dj, rj in zip(t, dec, src, strict=True):
                 row = self._row(tj, dj, rj)
                 flat.extend(row)
                 disp.append(row[_DISP])
@@ -1154,8 +1265,10 @@ class Pipeline:
             tt = t
             # (not np.frombuffer of an array.array, though faster: its base objects would be
             # tracked by the cyclic collector as long as the rows live)
-            m = np.array(flat).reshape(n, _NCOL)
+            m = np.fromiter(flat, np.float64, len(flat)).reshape(n, _NCOL)  # np.array: 1.5x
         else:
+            if block is None:
+                block = np.array(rq, dtype=np.float64)
             with np.errstate(invalid="ignore", divide="ignore"):  # NaN where no estimate
                 m = self._rows_vector(np.array(t), dec, block)
             tt, disp = m[:, 0], m[:, _DISP]
@@ -1179,7 +1292,7 @@ class Pipeline:
             fb.sort(key=lambda f: f.get("t", f.get("end", 0.0)))
         return Output(RowTable(m, codes), fb, list(verdicts), episodes)
 
-    def _row(self, t: float, dec: tuple[bool, int, float], r: list[float]) -> list[float]:
+    def _row(self, t: float, dec: tuple[bool, int, float], r: Sequence[float]) -> list[float]:
         """One row in Python floats, in ``_LAYOUT`` order (state filled in later)."""
         M = rows.SCALAR
         p = self.params
@@ -1219,9 +1332,14 @@ class Pipeline:
         p = self.params
         n = len(t)
         s = t - p.robot_time_offset_s
-        with_imu = np.array([d[0] for d in dec], dtype=bool)
-        spec = [d[1] for d in dec]
-        asof = np.array([d[2] for d in dec])
+        imu_l, spec_t, asof_l = zip(*dec, strict=True)
+        with_imu = np.array(imu_l, dtype=bool)
+        spec = list(spec_t)
+        asof = np.array(asof_l)
+        # where each row's run of equal nominal specs ends
+        spec_a = np.array(spec)
+        run_end = np.append(np.flatnonzero(spec_a[1:] != spec_a[:-1]) + 1, n)
+        run_end = run_end[np.searchsorted(run_end, np.arange(n), side="right")].tolist()
         if self._snaps:
             si = (
                 np.searchsorted(
@@ -1256,7 +1374,7 @@ class Pipeline:
         while i < n:
             k = spec[i]
             if self._arm_length_fixed(k):
-                j = _run_end(spec, i)
+                j = run_end[i]
                 la[i:j] = self._arm_len
                 i = j
             else:
@@ -1272,7 +1390,7 @@ class Pipeline:
             nom_a[i] = self._nominal_at(tl[i], tuple(sh_rows[i]), good[i], k)
             i += 1
             if self._nom_point is not None:  # set for the rest of this spec's rows
-                j = _run_end(spec, i - 1)
+                j = run_end[i - 1]
                 nom_a[i:j] = self._nom_point
                 i = j
         nom = tuple(nom_a[:, i] for i in range(3))
@@ -1319,7 +1437,7 @@ class Pipeline:
         kind, _, point = self._specs[k]
         return kind != "point" or point is None or k == self._arm_spec_done
 
-    def _arm_length(self, t: float, p_e: list[float], k: int) -> float:
+    def _arm_length(self, t: float, p_e: Sequence[float], k: int) -> float:
         """Upper-arm length at a row: the parameter, or measured at the rope reference.
 
         While the therapist holds the rope end on the shoulder (``shoulder_reference``), the

@@ -7,8 +7,10 @@ of rows at once, where numpy wins. Both run the *same* expressions below, with a
 ``M`` that is either :data:`SCALAR` (floats) or :data:`VECTOR` (arrays of shape (n,)):
 
 - arithmetic (``+ - * /``), comparisons and ``sqrt`` are IEEE-exact in both;
-- the transcendental functions and ``%`` are Python's ``math`` in both (mapped over the
-  array in :data:`VECTOR`), because numpy's may be SIMD versions with other last bits;
+- the transcendental functions are Python's ``math`` in both (mapped over the array in
+  :data:`VECTOR`), because numpy's may be SIMD versions with other last bits; ``%`` is
+  ``np.remainder`` in :data:`VECTOR`, which is exact like Python's (``fmod``, then the same
+  sign fix-up);
 - sums are written out in a fixed order (numpy's reductions pair terms differently);
 - both branches of a ``where`` are evaluated, so nothing may raise on NaN or on the
   discarded branch: squares are ``x * x`` (``**`` raises on overflow), divisors are kept
@@ -106,7 +108,10 @@ class _Vector:
 
     @staticmethod
     def mod(x: Any, m: float) -> Any:
-        return _v_map(lambda v: _s_mod(v, m), x)
+        # np.remainder is Python's float % (fmod, exact, then the same sign fix-up)
+        a = np.asarray(x, dtype=np.float64)
+        with np.errstate(invalid="ignore"):
+            return np.where(np.isfinite(a), np.remainder(a, m), NAN)
 
     @staticmethod
     def atan2(y: Any, x: Any) -> Any:

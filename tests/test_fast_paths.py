@@ -398,3 +398,45 @@ def test_chunked_reader_is_a_line_reader(
         p = tmp_path / name
         p.write_bytes(data)
         assert _read(p) == _line_reader(p), name
+
+
+def test_analyze_feeds_spans_as_it_would_feed_messages(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`rehab analyze` feeds stream messages as rows of their batch's columns
+    (`Pipeline.feed_imu_rows`, `feed_robot_rows`); with each span fed as its message
+    instead, every output is the same. On a session with faults of every kind."""
+    from estimators.params import PipelineParams
+    from tests.conftest import make_session
+
+    s = make_session(11, duration_s=60.0)
+    raw: list[tuple[str, Any]] = []
+    for i, (key, p) in enumerate(s.raw):
+        raw.append((key, p))
+        if i % 101 == 0 and "robot" in key:  # coincident cuffs
+            raw.append((key, {**p, "t": [x + 0.001 for x in p["t"]], "wrist": p["proximal"]}))
+        if i % 103 == 0:
+            raw.append((key, p))  # a duplicate: time not increasing
+        if i % 211 == 0 and "robot" in key:
+            raw[-1] = (key, {**p, "elbow": p["proximal"]})  # the robot's own elbow
+        if i % 307 == 0:
+            raw.append((key.replace("/imu/upperarm", "/imu/trunk"), p))
+            raw.append(("rehab/other/robot", p))
+            raw.append((key, {"t": [1.0, 0.5], "wrist": [], "proximal": []}))
+    path = tmp_path / "r.jsonl.gz"
+    recording.write(path, raw)
+    data = gzip.decompress(path.read_bytes()).split(b"\n")
+    data[700:700] = [b"not json", b'{"key": 1}']
+    path.write_bytes(gzip.compress(b"\n".join(data), mtime=0))
+
+    def outputs(out: Path) -> dict[str, str]:
+        analysis.analyze(path, PipelineParams(), out)
+        return {f.name: f.read_text() for f in sorted(out.iterdir())}
+
+    fast = outputs(tmp_path / "fast")
+    monkeypatch.setattr(analysis, "_feed_span", lambda p, sp, cols: p.feed(sp.message(cols)))
+    simple = outputs(tmp_path / "simple")
+    assert fast == simple
+    q = json.loads(fast["report.json"])["data_quality"]
+    assert q["rejected"]["coincident_cuffs"] > 0 and q["rejected"]["time_backwards"] > 0
+    assert q["other_devices"] and q["ignored"]["imu_trunk"] > 0

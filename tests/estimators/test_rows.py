@@ -122,3 +122,13 @@ def test_nothing_raises_on_nan_and_zero() -> None:
     assert all(math.isnan(v) for v in rows.unit(M_S, (0.0, 0.0, 0.0)))
     assert math.isnan(rows.angle_deg(M_S, x_now, (1.0, 0.0, 0.0)))
     assert all(math.isnan(v) for v in rows.extrapolate(M_S, x_now, x_now, 0.0, 0.1))
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.lists(st.floats(allow_nan=True, allow_infinity=True), min_size=1, max_size=20),
+    st.sampled_from([rows.TWO_PI, 1.0, 360.0, -rows.TWO_PI]),
+)
+def test_mod_is_pythons_percent(xs: list[float], m: float) -> None:
+    """``%`` on arrays (np.remainder) equals Python's on floats: negative, huge, ±0, inf."""
+    _same([M_S.mod(x, m) for x in xs], M_V.mod(np.array(xs), m))

@@ -1,0 +1,398 @@
+"""The heading estimator's fast paths against straightforward references, bit for bit.
+
+The references are the plain formulations (boolean-mask copies, one concatenated delay,
+``np.mean``/``np.median``/``np.einsum`` per sub-window); the module's versions avoid copies,
+wrappers and short inner loops but must produce every float identically.
+"""
+
+import copy
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from estimators import heading as hd
+
+
+def _same(x, y) -> bool:
+    """Bitwise equality of floats, arrays and lists of them (NaN payloads and −0.0 too)."""
+    if isinstance(x, np.ndarray) or isinstance(y, np.ndarray):
+        x, y = np.asarray(x), np.asarray(y)
+        return x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes()
+    if isinstance(x, list):
+        return isinstance(y, list) and len(x) == len(y) and all(map(_same, x, y))
+    if isinstance(x, float) or isinstance(y, float):
+        return np.float64(x).tobytes() == np.float64(y).tobytes()
+    return x == y
+
+
+def _special(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+    """Random values with signed zeros, ±NaN, infinities and wide exponents mixed in."""
+    x = rng.normal(size=shape) * 10.0 ** rng.integers(-5, 5, size=shape)
+    pick = rng.random(shape)
+    x[pick < 0.02] = 0.0
+    x[(pick >= 0.02) & (pick < 0.04)] = -0.0
+    x[(pick >= 0.04) & (pick < 0.045)] = np.nan
+    x[(pick >= 0.045) & (pick < 0.05)] = -np.float64(np.nan)
+    x[(pick >= 0.05) & (pick < 0.052)] = np.inf
+    return x
+
+
+# ------------------------------------------------------------------ references
+
+
+def _ref_motion(w: hd.Window, params: hd.HeadingParams, t_end: float) -> int:
+    sub = params.window_s / params.n_subwindows
+    edges = t_end - params.window_s + sub * np.arange(params.n_subwindows + 1)
+    idx = np.searchsorted(w.t, edges, side="right")
+    count = 0
+    limit = 0.25 * params.motion_diameter_m * params.motion_diameter_m
+    for i in range(params.n_subwindows):
+        sl = slice(idx[i], idx[i + 1])
+        p = w.p[sl][w.valid[sl]]
+        if p.shape[0] < 2:
+            continue
+        q = p - p.mean(axis=0)
+        if float(np.einsum("ij,ij->i", q, q).max()) > limit:
+            count += 1
+    return count
+
+
+def _ref_jacobian(cl):
+    n = len(cl)
+    c = cl[:, :9].reshape(n, 3, 3).transpose(0, 2, 1)
+    ldd = cl[:, 9:].reshape(n, 3, 3).transpose(0, 2, 1)
+    return np.concatenate((-c, ldd), axis=2).reshape(3 * n, 6)
+
+
+def _ref_delay(t, x, lag):
+    s = np.clip(t - lag, t[0], t[-1])
+    i1 = np.clip(np.searchsorted(t, s, side="left"), 1, len(t) - 1)
+    i0 = i1 - 1
+    w = ((s - t[i0]) / (t[i1] - t[i0]))[:, None]
+    return x[i0] + w * (x[i1] - x[i0])
+
+
+def _ref_rotate_z(delta, v):
+    c, s = np.cos(delta), np.sin(delta)
+    return np.stack((c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1], v[:, 2]), axis=1)
+
+
+def _ref_fit_drift(a, b, tau, rate0, params, n_iter=4):
+    sck = a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]
+    ssk = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    n = len(sck)
+    c0, s0 = np.cos(rate0 * tau), np.sin(rate0 * tau)
+    d0 = math.atan2(float(np.sum(ssk * c0 - sck * s0)), float(np.sum(sck * c0 + ssk * s0)))
+    e2 = float(np.sum(a[:, :2] ** 2) + np.sum(b[:, :2] ** 2))
+    span = float(tau[-1] - tau[0]) if n > 1 else 0.0
+    n_eff = max(1.0, span * params.effective_rate_hz)
+    sig_rho = math.radians(params.drift_prior_std_dps)
+    d, r = d0, rate0
+    inv_prior = 1.0 / (sig_rho * sig_rho)
+    h00 = h01 = h11 = det = 0.0
+    for _ in range(n_iter):
+        e = d + r * tau
+        ce, se = np.cos(e), np.sin(e)
+        f = sck * ce + ssk * se
+        g = ssk * ce - sck * se
+        sf = float(f.sum())
+        resid = max(e2 - 2.0 * sf, 1e-12)
+        kappa = n_eff / n / (resid / (2.0 * n))
+        ft = f * tau
+        g0 = kappa * float(g.sum())
+        g1 = kappa * float(g @ tau) - (r - rate0) * inv_prior
+        h00, h01, h11 = kappa * sf, kappa * float(ft.sum()), kappa * float(ft @ tau) + inv_prior
+        det = h00 * h11 - h01 * h01
+        if not (math.isfinite(det) and det > 0.0):
+            break
+        d += (h11 * g0 - h01 * g1) / det
+        r += (h00 * g1 - h01 * g0) / det
+    if det != 0.0 and math.isfinite(det):
+        sd, sr = math.sqrt(max(h11 / det, 0.0)), math.sqrt(max(h00 / det, 0.0))
+    else:
+        sd, sr = math.inf, sig_rho
+    return hd.wrap(d), r, sd, sr
+
+
+def _ref_sensor_fit(state, a, b, tau, cl, rate0, params):
+    n = len(a)
+    jac = _ref_jacobian(cl)
+    jtj = jac.T @ jac
+    prior = np.concatenate(
+        (np.full(3, 1.0 / params.acc_bias_prior**2), np.full(3, 1.0 / params.lever_prior**2))
+    )
+    x = np.concatenate((state.acc_bias, state.lever_error))
+    span = float(tau[-1] - tau[0]) if n > 1 else 0.0
+    n_eff = max(1.0, span * params.effective_rate_hz)
+    d0, rate, sd = 0.0, rate0, math.inf
+    for _ in range(1 if state.converged else params.sensor_fit_iterations):
+        ac = a + (jac @ x).reshape(n, 3)
+        d0, rate, sd, _ = _ref_fit_drift(ac, b, tau, rate0, params, n_iter=3)
+        y = (_ref_rotate_z(-(d0 + rate * tau), b) - a).reshape(-1)
+        r = y - jac @ x
+        var = max(float(r @ r) / (3 * n), 1e-8) * n / n_eff
+        x = np.asarray(np.linalg.solve(jtj / var + np.diag(prior), (jac.T @ y) / var), np.float64)
+    state.acc_bias, state.lever_error = x[:3].copy(), x[3:].copy()
+    return d0, rate, sd
+
+
+def _ref_update_improved(state, w, params, t, lag_s):
+    a, b, tau = w.a[w.valid], w.b[w.valid], w.t[w.valid] - t
+    recent = tau > -params.window_s
+    excitation = (
+        float(np.sqrt(np.mean(np.sum(b[recent, :2] ** 2, axis=1)))) if np.any(recent) else 0.0
+    )
+    state.excitation = excitation
+    if (
+        len(a) < 2
+        or excitation < params.min_excitation
+        or _ref_motion(w, params, t) < params.min_motion_subwindows
+    ):
+        return False
+    v = w.valid
+    cl = w.cl[v] if w.cl is not None else None
+    if params.estimate_lag and (state.n_counted % params.lag_every == 0 or not state.converged):
+        dt = float(np.median(np.diff(w.t))) if len(w.t) > 1 else 0.04
+        k = int(np.searchsorted(w.t, t - params.window_s, side="right"))
+        a_tail = w.a[k:]
+        if params.estimate_sensor_errors and w.cl is not None:
+            x = np.concatenate((state.acc_bias, state.lever_error))
+            a_tail = a_tail + (_ref_jacobian(w.cl[k:]) @ x).reshape(-1, 3)
+        tail = hd.Window(w.t[k:], a_tail, w.b[k:], w.p[k:], w.valid[k:])
+        lag, weight = hd.estimate_lag(tail, params, dt)
+    else:
+        lag, weight = 0.0, 0.0
+    if params.estimate_lag:
+        if weight > 0:
+            state.lag = (state.lag * state.lag_weight + lag * weight) / (state.lag_weight + weight)
+            state.lag_weight = min(state.lag_weight + weight, 50.0 * weight)
+        if state.lag != 0.0:
+            ac = np.concatenate((a, cl), axis=1) if cl is not None else a
+            ac = _ref_delay(w.t[v], ac, state.lag)
+            a, cl = ac[:, :3], (ac[:, 3:] if cl is not None else None)
+    rate0 = state.rate if state.converged else 0.0
+    if params.estimate_sensor_errors and cl is not None and np.any(cl):
+        d0, rate, sd = _ref_sensor_fit(state, a, b, tau, cl, rate0, params)
+    else:
+        d0, rate, sd, _ = _ref_fit_drift(a, b, tau, rate0, params)
+    d = hd.wrap(d0 + rate * lag_s)
+    prev = hd.predict(state, t)
+    state.n_counted += 1
+    state.history.append(d)
+    state.delta, state.rate, state.t_update, state.std = d, rate, t, sd
+    if not state.converged:
+        tol = math.radians(params.max_converge_std_deg)
+        last = state.history[-3:]
+        if (
+            len(last) == 3
+            and prev is not None
+            and sd <= tol
+            and all(abs(hd.wrap(last[i + 1] - last[i])) <= 2 * tol for i in range(2))
+        ):
+            state.converged, state.t_converged = True, t
+    return True
+
+
+# ------------------------------------------------------------------ data
+
+
+def _motion_window(seed: int, n: int = 1000, invalid: float = 0.0, cl: bool = True) -> hd.Window:
+    """An arm circling at 0.3 Hz seen by both sides (25 Hz, jittered clock), frame I turned
+    by a random heading; the robot stream a little late."""
+    rng = np.random.default_rng(seed)
+    t = 100.0 + 0.04 * np.arange(n) + rng.normal(0.0, 2e-4, n)
+    ph = 2 * np.pi * 0.3 * t
+    amp = rng.uniform(0.2, 2.0)
+    a = np.stack((amp * np.cos(ph), amp * np.sin(ph), 0.3 * np.sin(1.7 * ph)), axis=1)
+    a += rng.normal(0.0, 0.05, (n, 3))
+    d = rng.uniform(-3.0, 3.0)
+    b = hd._rotate_z(np.full(n, d), np.roll(a, 1, axis=0)) + rng.normal(0.0, 0.05, (n, 3))
+    p = 0.2 * np.stack((np.cos(ph), np.sin(ph), 0.2 * np.sin(ph)), axis=1)
+    p *= rng.uniform(0.2, 1.5)
+    valid = rng.random(n) >= invalid
+    c = rng.normal(0.0, 0.3, (n, 18)) if cl else None
+    return hd.Window(t, a, b, p, valid, c)
+
+
+def _read_only(w: hd.Window) -> hd.Window:
+    """The window with read-only arrays: an in-place write into a caller's buffer raises."""
+    arrays = {}
+    for f in dataclasses.fields(w):
+        x = getattr(w, f.name)
+        if x is not None:
+            x = x.copy()
+            x.setflags(write=False)
+        arrays[f.name] = x
+    return hd.Window(**arrays)
+
+
+def _states(rng: np.random.Generator) -> list[hd.HeadingState]:
+    out = [hd.HeadingState()]
+    for converged in (False, True):
+        for n_counted in (3, 10, 11):
+            s = hd.HeadingState(
+                delta=0.4,
+                rate=0.002,
+                t_update=130.0,
+                std=0.01,
+                converged=converged,
+                n_counted=n_counted,
+                history=[0.41, 0.4],
+                acc_bias=rng.normal(0.0, 0.05, 3),
+                lever_error=rng.normal(0.0, 0.01, 3),
+                lag=0.06 if n_counted != 3 else 0.0,
+                lag_weight=2.0,
+            )
+            out.append(s)
+    return out
+
+
+PARAMS = [
+    hd.HeadingParams(),
+    hd.HeadingParams(estimate_lag=False),
+    hd.HeadingParams(estimate_sensor_errors=False),
+    hd.HeadingParams(sensor_fit_iterations=3, lag_every=3),
+]
+
+
+# ------------------------------------------------------------------ tests
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_update_improved_is_bit_identical_to_the_reference(seed):
+    rng = np.random.default_rng(seed)
+    n = [1000, 600, 520, 1000, 1000, 700][seed]
+    w = _motion_window(seed, n, invalid=[0.0, 0.05, 0.0, 0.3, 0.0, 0.02][seed], cl=seed != 4)
+    windows = [w, dataclasses.replace(w, valid=np.ones(n, bool))]
+    if w.cl is not None:
+        windows.append(dataclasses.replace(w, cl=None))
+    counted = 0
+    for win in windows:
+        fast_w = _read_only(win)
+        t = float(win.t[-1]) - rng.uniform(0.0, 3.0)
+        for state in _states(rng):
+            for params in PARAMS:
+                ref, fast = copy.deepcopy(state), copy.deepcopy(state)
+                r_ref = _ref_update_improved(ref, win, params, t, 1.0)
+                r_fast = hd.update_improved(fast, fast_w, params, t, 1.0)
+                assert r_ref is r_fast
+                counted += r_ref
+                for f in dataclasses.fields(hd.HeadingState):
+                    assert _same(getattr(ref, f.name), getattr(fast, f.name)), f.name
+    assert counted > 0  # the fits ran, not just the early returns
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_update_paper_masks_like_compressing(seed):
+    # with invalid samples dropped up front the paper update must see the same window
+    w = _motion_window(seed, 500, invalid=0.2 * seed, cl=False)
+    v = w.valid
+    packed = hd.Window(w.t[v], w.a[v], w.b[v], w.p[v], np.ones(int(v.sum()), bool))
+    p = hd.HeadingParams.paper()
+    s1, s2 = hd.HeadingState(), hd.HeadingState()
+    for t in (float(w.t[-1]) - 2.0, float(w.t[-1])):
+        assert hd.update_paper(s1, _read_only(w), p, t) == hd.update_paper(s2, packed, p, t)
+    for f in dataclasses.fields(hd.HeadingState):
+        assert _same(getattr(s1, f.name), getattr(s2, f.name)), f.name
+
+
+def _ref_spreads(w: hd.Window, params: hd.HeadingParams, t_end: float) -> list[float]:
+    """The largest squared distance from the centroid in each counted sub-window."""
+    sub = params.window_s / params.n_subwindows
+    edges = t_end - params.window_s + sub * np.arange(params.n_subwindows + 1)
+    idx = np.searchsorted(w.t, edges, side="right")
+    out = []
+    for i in range(params.n_subwindows):
+        p = w.p[idx[i] : idx[i + 1]][w.valid[idx[i] : idx[i + 1]]]
+        if p.shape[0] >= 2:
+            q = p - p.mean(axis=0)
+            out.append(float(np.einsum("ij,ij->i", q, q).max()))
+    return out
+
+
+def _diameter_for_limit(limit: float) -> float | None:
+    """A diameter whose test radius² ``0.25 d²`` is exactly ``limit`` (None if none near)."""
+    d = 2.0 * math.sqrt(limit)
+    for _ in range(8):
+        got = 0.25 * d * d
+        if got == limit:
+            return d
+        d = math.nextafter(d, -math.inf if got > limit else math.inf)
+    return None
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_motion_subwindows_matches_the_loop(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(0, 600))
+    t = np.sort(rng.uniform(0.0, 24.0, n))
+    p = rng.normal(0.0, 1.0, (n, 3)) * rng.uniform(0.005, 0.1) + rng.normal(0.0, 1.0, 3)
+    if seed % 5 == 0 and n:
+        p[rng.integers(0, n, 2)] = np.nan
+    valid = rng.random(n) >= [0.0, 0.1, 0.6, 0.95][seed % 4]
+    params = hd.HeadingParams(
+        motion_diameter_m=float(rng.uniform(0.01, 0.3)), n_subwindows=int(rng.integers(1, 9))
+    )
+    w = hd.Window(t, p, p, p, valid)
+    for t_end in (24.0, float(rng.uniform(0.0, 30.0))):
+        assert hd.motion_subwindows(w, params, t_end) == _ref_motion(w, params, t_end)
+        # thresholds exactly at (and one ulp under) each spread: a last-bit change shows
+        for spread in _ref_spreads(w, params, t_end):
+            for limit in (spread, math.nextafter(spread, 0.0)):
+                d = _diameter_for_limit(limit) if math.isfinite(limit) and limit > 0 else None
+                if d is not None:
+                    at = dataclasses.replace(params, motion_diameter_m=d)
+                    assert hd.motion_subwindows(w, at, t_end) == _ref_motion(w, at, t_end)
+
+
+def test_jacobian_matches_concatenate():
+    rng = np.random.default_rng(1)
+    cl = _special(rng, (300, 18))
+    assert _same(hd._jacobian(cl), _ref_jacobian(cl))
+    wide = np.concatenate((cl, cl), axis=1)[:, 5:23]  # non-contiguous rows
+    assert _same(hd._jacobian(wide), _ref_jacobian(wide))
+
+
+@pytest.mark.parametrize("lag", [0.061, -0.03, 0.5, -3.0, 1e-9])
+def test_delay_parts_match_one_concatenated_delay(lag):
+    rng = np.random.default_rng(2)
+    n = 400
+    t = 10.0 + 0.04 * np.arange(n) + rng.normal(0.0, 3e-4, n)
+    a, cl = _special(rng, (n, 3)), _special(rng, (n, 18))
+    ref = _ref_delay(t, np.concatenate((a, cl), axis=1), lag)
+    i0, i1, w = hd._delay_index(t, lag)
+    assert _same(hd._delay_apply(a, i0, i1, w), ref[:, :3])
+    assert _same(hd._delay_apply(cl, i0, i1, w), ref[:, 3:])
+    assert _same(hd._delay(t, cl, lag), _ref_delay(t, cl, lag))
+
+
+def test_rotate_z_minus_matches_stack():
+    rng = np.random.default_rng(3)
+    delta, v, u = _special(rng, (500,)), _special(rng, (500, 3)), _special(rng, (500, 3))
+    assert _same(hd._rotate_z_minus(delta, v, u), _ref_rotate_z(delta, v) - u)
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_rms_horizontal_matches_numpy(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 2000))
+    b = _special(rng, (n, 3)) if seed % 2 else rng.normal(size=(n, 3))
+    strided = np.concatenate((b, b), axis=1)[:, 1:4]
+    for x in (b, strided, np.asfortranarray(b)):
+        ref = float(np.sqrt(np.mean(np.sum(x[:, :2] ** 2, axis=1))))
+        assert _same(hd._rms_horizontal(x), ref)
+
+
+@pytest.mark.parametrize("rate0", [0.0, 0.004, -0.01])
+def test_fit_drift_matches_reference(rate0):
+    rng = np.random.default_rng(4)
+    n = 800
+    tau = np.linspace(-40.0, 0.0, n)
+    a = rng.normal(size=(n, 3))
+    b = hd._rotate_z(0.7 + 0.003 * tau, a) + 0.1 * rng.normal(size=(n, 3))
+    params = hd.HeadingParams()
+    for n_iter in (3, 4):
+        got = hd.fit_drift(a, b, tau, rate0, params, n_iter)
+        assert _same(list(got), list(_ref_fit_drift(a, b, tau, rate0, params, n_iter)))
