@@ -399,16 +399,15 @@ def decode_columns(
     cols: dict[str, Columns] = {}
     for name, (ts, ra, rb, rc) in acc.items():
         n = len(ts)
-        rc += [_NAN3] * (n - len(rc)) if rc else []
+        if rc:
+            rc += [_NAN3] * (n - len(rc))
         cols[name] = Columns(
             # from flat doubles: numpy's conversion of nested sequences costs ~3x more
             np.frombuffer(array.array("d", ts), dtype=np.float64),
             ts,
             np.fromiter(chain.from_iterable(ra), np.float64, 3 * n).reshape(n, 3),
             np.fromiter(chain.from_iterable(rb), np.float64, 3 * n).reshape(n, 3),
-            np.fromiter(chain.from_iterable(rc), np.float64, 3 * n).reshape(n, 3)
-            if rc
-            else None,
+            np.fromiter(chain.from_iterable(rc), np.float64, 3 * n).reshape(n, 3) if rc else None,
         )
     return out, cols
 

@@ -277,23 +277,13 @@ def fit_drift(
     (residual variance per sample, corrected for the low-pass's sample correlation).
     Returns ``(δ0, ρ, std δ0, std ρ)`` in rad and rad/s.
     """
-    return _fit_drift(a, b, tau, rate0, params, n_iter, float(np.sum(b[:, :2] ** 2)))
-
-
-def _fit_drift(
-    a: Array, b: Array, tau: Array, rate0: float, params: HeadingParams, n_iter: int, eb2: float
-) -> tuple[float, float, float, float]:
-    """:func:`fit_drift` given ``eb2 = np.sum(b[:, :2] ** 2)`` (fixed while ``a`` is re-corrected).
-    ``x.sum()`` is ``np.sum(x)`` (the same reduction) without the wrapper."""
-    a0, a1, b0, b1 = a[:, 0], a[:, 1], b[:, 0], b[:, 1]
-    sck = a0 * b0 + a1 * b1
-    ssk = a0 * b1 - a1 * b0
+    sck = a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]
+    ssk = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
     n = len(sck)
     # Constant-heading solution on data de-rotated by the prior drift: the starting point.
-    rt = rate0 * tau
-    c0, s0 = np.cos(rt), np.sin(rt)
-    d0 = math.atan2(float((ssk * c0 - sck * s0).sum()), float((sck * c0 + ssk * s0).sum()))
-    e2 = float(np.sum(a[:, :2] ** 2) + eb2)
+    c0, s0 = np.cos(rate0 * tau), np.sin(rate0 * tau)
+    d0 = math.atan2(float(np.sum(ssk * c0 - sck * s0)), float(np.sum(sck * c0 + ssk * s0)))
+    e2 = float(np.sum(a[:, :2] ** 2) + np.sum(b[:, :2] ** 2))
     span = float(tau[-1] - tau[0]) if n > 1 else 0.0
     n_eff = max(1.0, span * params.effective_rate_hz)
     sig_rho = math.radians(params.drift_prior_std_dps)
@@ -392,15 +382,14 @@ def _fit_with_sensor_errors(
     x = np.concatenate((state.acc_bias, state.lever_error))
     span = float(tau[-1] - tau[0]) if n > 1 else 0.0
     n_eff = max(1.0, span * params.effective_rate_hz)
-    eb2 = float(np.sum(b[:, :2] ** 2))
     d0, rate, sd = 0.0, rate0, math.inf
     # once converged the previous window's errors are a warm start: one alternation is enough
     for _ in range(1 if state.converged else params.sensor_fit_iterations):
         jx = jac @ x  # used twice (the same product, so the same bits)
         ac = a + jx.reshape(n, 3)
-        d0, rate, sd, _ = _fit_drift(ac, b, tau, rate0, params, 3, eb2)
+        d0, rate, sd, _ = fit_drift(ac, b, tau, rate0, params, n_iter=3)
         # residual in frame I: Rz(−δ_k) b_k − a_k = jac_k x + noise
-        y = _rotate_z_minus(-(d0 + rate * tau), b, a).reshape(-1)
+        y = (_rotate_z(-(d0 + rate * tau), b) - a).reshape(-1)
         r = y - jx
         var = max(float(r @ r) / (3 * n), 1e-8) * n / n_eff
         x = np.asarray(np.linalg.solve(jtj / var + prior, (jac.T @ y) / var), np.float64)
@@ -432,13 +421,9 @@ def _jacobian(cl: Array) -> Array:
     return jac
 
 
-def _delay(t: Array, x: Array, lag: float) -> Array:
-    """``x`` (n, c) sampled at ``t − lag`` by linear interpolation (held at the ends)."""
-    return _delay_apply(x, *_delay_index(t, lag))
-
-
 def _delay_index(t: Array, lag: float) -> tuple[IndexArray, IndexArray, Array]:
-    """The interpolation of :func:`_delay`: ``(i0, i1, w)``, ``w`` as a column (n, 1)."""
+    """Linear interpolation at ``t − lag`` (held at the ends) for :func:`_delay_apply`:
+    ``(i0, i1, w)``, ``w`` as a column (n, 1)."""
     s = np.clip(t - lag, t[0], t[-1])
     i1 = np.clip(np.searchsorted(t, s, side="left"), 1, len(t) - 1)
     i0 = i1 - 1
@@ -447,8 +432,9 @@ def _delay_index(t: Array, lag: float) -> tuple[IndexArray, IndexArray, Array]:
 
 
 def _delay_apply(x: Array, i0: IndexArray, i1: IndexArray, w: Array) -> Array:
-    """``x[i0] + w * (x[i1] - x[i0])`` with the same operations in the same operand order,
-    in two buffers instead of five (fresh arrays of this size are slow to allocate here)."""
+    """``x`` (n, c) delayed: ``x[i0] + w * (x[i1] - x[i0])`` with the same operations in the
+    same operand order, in two buffers instead of five (fresh arrays of this size are slow
+    to allocate here)."""
     out: Array = np.take(x, i0, axis=0)
     dx = np.take(x, i1, axis=0)
     np.subtract(dx, out, out=dx)
@@ -460,17 +446,6 @@ def _delay_apply(x: Array, i0: IndexArray, i1: IndexArray, w: Array) -> Array:
 def _rotate_z(delta: Array, v: Array) -> Array:
     c, s = np.cos(delta), np.sin(delta)
     return np.stack((c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1], v[:, 2]), axis=1)
-
-
-def _rotate_z_minus(delta: Array, v: Array, u: Array) -> Array:
-    """``_rotate_z(delta, v) - u`` (n, 3), each column written once into the result."""
-    c, s = np.cos(delta), np.sin(delta)
-    v0, v1 = v[:, 0], v[:, 1]
-    out = np.empty((len(v), 3), dtype=np.result_type(c, v, u))
-    np.subtract(c * v0 - s * v1, u[:, 0], out=out[:, 0])
-    np.subtract(s * v0 + c * v1, u[:, 1], out=out[:, 1])
-    np.subtract(v[:, 2], u[:, 2], out=out[:, 2])
-    return out
 
 
 def update_improved(

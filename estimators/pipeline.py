@@ -779,10 +779,7 @@ class Pipeline:
         # has reached the row, else its prediction starts there)
         self._decisions: list[tuple[bool, int, float]] = []
         self._n_done = 0
-        # wrist, p_E, x_C of the robot samples not yet emitted: float tuples while all came
-        # one by one (the live case: no numpy calls per row), else a matrix; one is empty
-        self._rowq: list[tuple[float, ...]] = []
-        self._rowbuf = RowBuffer(9)
+        self._rowbuf = RowBuffer(9)  # wrist, p_E, x_C of the robot samples not yet emitted
         # heading
         self._hstate = hd.HeadingState()
         self._hseg = 0
@@ -935,7 +932,7 @@ class Pipeline:
         wl, pl = wrist.tolist(), proximal.tolist()
         for w, p in zip(wl, pl, strict=True):
             x, y, z = w[0] - p[0], w[1] - p[1], w[2] - p[2]
-            if x * x + y * y + z * z <= 1e-12:
+            if x * x + y * y + z * z <= _COINCIDENT_M2:
                 self.quality.reject("coincident_cuffs")
                 return False
         self._close_robot_run()
@@ -964,7 +961,7 @@ class Pipeline:
             # the same arithmetic as feed_robot's loop, for all the rows at once
             d = wrist - proximal
             x, y, z = d[:, 0], d[:, 1], d[:, 2]
-            self._cuff_bad = np.flatnonzero(x * x + y * y + z * z <= 1e-12).tolist()
+            self._cuff_bad = np.flatnonzero(x * x + y * y + z * z <= _COINCIDENT_M2).tolist()
             self._cuff_src = (wrist, proximal)
         j = bisect.bisect_left(self._cuff_bad, i0)
         if j < len(self._cuff_bad) and self._cuff_bad[j] < i1:
@@ -1208,10 +1205,7 @@ class Pipeline:
                 pe = (p[0] - lp * xc[0], p[1] - lp * xc[1], p[2] - lp * xc[2])
                 if el is not None:
                     pe = tuple(e if math.isfinite(e) else v for e, v in zip(el[j], pe, strict=True))
-                if len(self._rowbuf):
-                    self._rowbuf.push((*w, *pe, *xc))
-                else:
-                    self._rowq.append((*w, *pe, *xc))
+                self._rowbuf.push((*w, *pe, *xc))
                 pes.append(pe)
             self._robot.append([x - off for x in tl] if off else tl, pes, self.quality)
             return
@@ -1221,9 +1215,6 @@ class Pipeline:
         if elbow is not None:
             pe_v = tuple(np.where(np.isfinite(elbow[:, i]), elbow[:, i], pe_v[i]) for i in range(3))
         block = np.column_stack((wrist, *pe_v, *xc_v))
-        if self._rowq:
-            self._rowbuf.append(np.array(self._rowq, dtype=np.float64))
-            self._rowq = []
         self._rowbuf.append(block)
         self._robot.append((t - off).tolist(), block[:, 3:6], self.quality)
 
@@ -1239,14 +1230,8 @@ class Pipeline:
         n = hi - lo
         t = self._row_t[lo:hi]
         dec = self._decisions[lo:hi]
-        rq: list[tuple[float, ...]] | None = None
-        if self._rowq:  # all waiting rows are here
-            rq = self._rowq[:n]
-            del self._rowq[:n]
-            block = None
-        else:
-            block = self._rowbuf.view()[:n]  # valid until the next append (none before return)
-            self._rowbuf.drop(n)
+        block = self._rowbuf.view()[:n]  # valid until the next append (none before return)
+        self._rowbuf.drop(n)
         # compensation rule (§3.4); segment first: a completed cycle sets the tolerated
         # duration from its end on
         boundaries: list[float]
@@ -1256,8 +1241,7 @@ class Pipeline:
             flat: list[float] = []
             boundaries, disp = [], []
             seg = self._segmenter
-            src: list[Any] = block.tolist() if block is not None else (rq or [])
-            for tj, dj, rj in zip(t, dec, src, strict=True):
+            for tj, dj, rj in zip(t, dec, block.tolist(), strict=True):
                 row = self._row(tj, dj, rj)
                 flat.extend(row)
                 disp.append(row[_DISP])
@@ -1267,8 +1251,6 @@ class Pipeline:
             # tracked by the cyclic collector as long as the rows live)
             m = np.fromiter(flat, np.float64, len(flat)).reshape(n, _NCOL)  # np.array: 1.5x
         else:
-            if block is None:
-                block = np.array(rq, dtype=np.float64)
             with np.errstate(invalid="ignore", divide="ignore"):  # NaN where no estimate
                 m = self._rows_vector(np.array(t), dec, block)
             tt, disp = m[:, 0], m[:, _DISP]
@@ -1532,6 +1514,7 @@ def _kind_of(msg: Any) -> str:
     return "other"
 
 
+_COINCIDENT_M2 = 1e-12  # squared cuff distance, m², below which the cuffs coincide
 _SMALL = 16  # up to this many rows or samples per call take the Python-float path
 NAN3 = (math.nan,) * 3
 NAN4 = (math.nan,) * 4
