@@ -174,6 +174,20 @@ class SimDevice(threading.Thread):
         self.error: BaseException | None = None
         self.sent = 0
 
+    def wait_known(self, service: Service, timeout_s: float = 30.0) -> None:
+        """Block until the service has heard from this device (its REST resource exists)."""
+        deadline = time.monotonic() + timeout_s
+        api = service.api()
+        try:
+            while api.get(f"/api/devices/{self.device}").status_code != 200:
+                if self.error is not None or not self.is_alive():
+                    raise AssertionError(f"{self.name} stopped: {self.error!r}")
+                if time.monotonic() > deadline:
+                    raise AssertionError(f"the service did not hear from {self.device}")
+                time.sleep(0.1)
+        finally:
+            api.close()
+
     def go(self) -> None:
         self._go.set()
 
@@ -214,7 +228,10 @@ class ConsoleLog:
     def watch(self, page: Page) -> Page:
         def on_console(msg: ConsoleMessage) -> None:
             if msg.type == "error":
-                self.errors.append(f"{page.url}: {msg.text}")
+                # A failed load names its resource only in the location, not in the text.
+                src = msg.location.get("url") or ""
+                where = f" [{src}]" if src and src != page.url else ""
+                self.errors.append(f"{page.url}: {msg.text}{where}")
 
         page.on("console", on_console)
         page.on("pageerror", lambda exc: self.errors.append(f"{page.url}: {exc}"))

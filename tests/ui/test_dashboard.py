@@ -111,6 +111,7 @@ def device(service: Service) -> Iterator[SimDevice]:
     )  # fmt: skip
     sim.start()
     try:
+        sim.wait_known(service)  # the tests open its page as a device that is online
         yield sim
     finally:
         sim.stop()
@@ -261,6 +262,16 @@ def _overlay_readability(overlay: Page, banner: bool = True) -> None:
     box = m["box"]
     assert box["right"] >= 0.95 * vw and box["bottom"] >= 0.9 * vh, box
     assert box["left"] >= 0.6 * vw and box["top"] >= 0.3 * vh, box
+
+
+def test_a_device_not_heard_from_yet_is_waited_for(page: Page, console: ConsoleLog) -> None:
+    page.goto("/devices/later01")
+    expect(page.get_by_role("heading", name="later01")).to_be_visible()
+    expect(page.get_by_role("status").filter(has_text="has not sent data yet")).to_be_visible()
+    expect(page.get_by_role("alert")).to_have_count(0)  # not an error
+    # The browser itself logs the 404 of the device's REST resource; nothing else.
+    assert len(console.errors) == 1 and "/api/devices/later01]" in console.errors[0], console.errors
+    console.errors.clear()
 
 
 def test_session_indicator_and_overlay(

@@ -236,12 +236,19 @@ export function LivePage({ device }: { device: string }) {
   const [busy, setBusy] = useState(false);
   const [, tick] = useState(0);
 
+  // A device that has not sent data yet is not an error: the page waits for it and reads
+  // the device again once the live feed hears from it.
+  const [unknown, setUnknown] = useState(false);
+  const heard = dev.status !== null;
   useEffect(() => {
     api
       .get<Device>(`/api/devices/${device}`)
-      .then(setRest)
-      .catch((e) => setError(e?.status === 404 ? `Device ${device} has never sent data.` : errorText(e)));
-  }, [device]);
+      .then((d) => {
+        setRest(d);
+        setUnknown(false);
+      })
+      .catch((e) => (e?.status === 404 ? setUnknown(true) : setError(errorText(e))));
+  }, [device, heard]);
 
   const liveSessionId = dev.status ? dev.status.session_id : (rest?.active_session_id ?? null);
   useEffect(() => {
@@ -310,6 +317,9 @@ export function LivePage({ device }: { device: string }) {
       </div>
       <ConnectionNote connection={client.connection} />
       {error && <Alert kind="error">{error}</Alert>}
+      {unknown && !heard && (
+        <Alert kind="info">Device {device} has not sent data yet. This page goes live when it does.</Alert>
+      )}
       {stopped && (
         <Alert kind="info">
           Session stopped. <a href={`/sessions/${stopped.id}`}>Open the report</a>
