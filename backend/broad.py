@@ -235,8 +235,9 @@ def estimate_lag(trial: Trial, max_lag_s: float = 0.035) -> float:
     max_lag = max_lag_s * trial.rate_hz
     grid = np.arange(-np.floor(max_lag), np.floor(max_lag) + 1.0)
     best = float(grid[int(np.argmin([cost(float(g)) for g in grid]))])
-    res = minimize_scalar(cost, bounds=(best - 1.0, best + 1.0), method="bounded",
-                          options={"xatol": 1e-3})
+    res = minimize_scalar(
+        cost, bounds=(best - 1.0, best + 1.0), method="bounded", options={"xatol": 1e-3}
+    )
     return float(res.x) / trial.rate_hz
 
 
@@ -376,21 +377,23 @@ def convert(
     timed: list[tuple[float, int, tuple[str, dict[str, Any]]]] = []
     for seq, i0 in enumerate(range(0, trial.n, imu_batch)):
         sl = slice(i0, min(i0 + imu_batch, trial.n))
-        msg = wire.ImuMessage(
-            device, "upperarm", t_imu[sl], trial.gyr[sl], trial.acc[sl], seq=seq
-        )
+        msg = wire.ImuMessage(device, "upperarm", t_imu[sl], trial.gyr[sl], trial.acc[sl], seq=seq)
         timed.append((float(t_imu[sl][-1]), 0, wire.encode(msg)))
     for seq in range(t_rob.shape[0]):
         sl = slice(seq, seq + 1)
-        rmsg = wire.RobotMessage(
-            device, t_rob[sl], wrist[sl], proximal[sl], elbow[sl], seq=seq
-        )
+        rmsg = wire.RobotMessage(device, t_rob[sl], wrist[sl], proximal[sl], elbow[sl], seq=seq)
         timed.append((float(t_rob[seq]), 1, wire.encode(rmsg)))
     timed.sort(key=lambda e: (e[0], e[1]))  # stable: IMU before robot at equal times
 
     truth = Truth(
-        t=t_imu, q_ref=q_ref, movement=trial.movement.copy(), robot_t=t_rob, elbow=elbow,
-        lag_s=lag, acc_offset_m=offset, robot_yaw_deg=float(robot_yaw_deg),
+        t=t_imu,
+        q_ref=q_ref,
+        movement=trial.movement.copy(),
+        robot_t=t_rob,
+        elbow=elbow,
+        lag_s=lag,
+        acc_offset_m=offset,
+        robot_yaw_deg=float(robot_yaw_deg),
     )
     return Converted([m for _, _, m in timed], truth)
 

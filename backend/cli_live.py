@@ -27,8 +27,14 @@ DEMO_DEVICES = (
 )
 # One simulated session each, played in a loop: sim02 drifts into compensation after a
 # minute of proper movement (the paper's 8-minute protocol, shortened for a demo).
-DRIFT_LAYOUT = (("rest", 5.0), ("proper", 60.0), ("transition", 20.0), ("compensatory", 150.0),
-                ("transition", 15.0), ("proper", 60.0))
+DRIFT_LAYOUT = (
+    ("rest", 5.0),
+    ("proper", 60.0),
+    ("transition", 20.0),
+    ("compensatory", 150.0),
+    ("transition", 15.0),
+    ("proper", 60.0),
+)
 DEMO_SECONDS = sum(d for _, d in DRIFT_LAYOUT)
 
 
@@ -44,9 +50,13 @@ def settings_from_args(args: argparse.Namespace, **extra: Any) -> Settings:
     from backend.settings import Settings
 
     given: dict[str, Any] = {
-        "host": args.host, "port": args.port, "data_dir": args.data_dir,
-        "database_url": args.database_url, "zenoh_listen": args.zenoh_listen,
-        "zenoh_connect": args.zenoh_connect, **extra,
+        "host": args.host,
+        "port": args.port,
+        "data_dir": args.data_dir,
+        "database_url": args.database_url,
+        "zenoh_listen": args.zenoh_listen,
+        "zenoh_connect": args.zenoh_connect,
+        **extra,
     }
     return Settings(**{k: v for k, v in given.items() if v is not None})
 
@@ -54,30 +64,46 @@ def settings_from_args(args: argparse.Namespace, **extra: Any) -> Settings:
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--host", help="HTTP address (default 127.0.0.1, REHAB_HOST)")
     p.add_argument("--port", type=int, help="HTTP port (REHAB_PORT)")
-    p.add_argument("--data-dir", type=Path, metavar="DIR",
-                   help="database (SQLite by default), recordings, secret (REHAB_DATA_DIR)")
-    p.add_argument("--database-url", metavar="URL",
-                   help="e.g. postgresql://user:pw@host/db (REHAB_DATABASE_URL)")
-    p.add_argument("--log-level", default="info",
-                   choices=["critical", "error", "warning", "info", "debug"])
+    p.add_argument(
+        "--data-dir",
+        type=Path,
+        metavar="DIR",
+        help="database (SQLite by default), recordings, secret (REHAB_DATA_DIR)",
+    )
+    p.add_argument(
+        "--database-url",
+        metavar="URL",
+        help="e.g. postgresql://user:pw@host/db (REHAB_DATABASE_URL)",
+    )
+    p.add_argument(
+        "--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"]
+    )
 
 
 def add_parser(sub: Any) -> None:
     s = sub.add_parser(
-        "serve", help="run the service (contract §6)",
+        "serve",
+        help="run the service (contract §6)",
         description="Run the live service: Zenoh ingest, one pipeline per device, REST and "
         "WebSocket API, the dashboard. Settings come from REHAB_* variables; flags override.",
     )
     _common(s)
     z = s.add_mutually_exclusive_group()
-    z.add_argument("--zenoh-listen", metavar="ENDPOINT",
-                   help="listen as a Zenoh peer (default tcp/127.0.0.1:7447, REHAB_ZENOH_LISTEN)")
-    z.add_argument("--zenoh-connect", metavar="ENDPOINT",
-                   help="be a client of the Zenoh router at ENDPOINT (REHAB_ZENOH_CONNECT)")
+    z.add_argument(
+        "--zenoh-listen",
+        metavar="ENDPOINT",
+        help="listen as a Zenoh peer (default tcp/127.0.0.1:7447, REHAB_ZENOH_LISTEN)",
+    )
+    z.add_argument(
+        "--zenoh-connect",
+        metavar="ENDPOINT",
+        help="be a client of the Zenoh router at ENDPOINT (REHAB_ZENOH_CONNECT)",
+    )
     s.set_defaults(func=cmd_serve)
 
     d = sub.add_parser(
-        "demo", help="the service with two simulated devices streaming in real time",
+        "demo",
+        help="the service with two simulated devices streaming in real time",
         description="Start the service with an embedded Zenoh on a free loopback port and "
         "SQLite in the data directory, and two simulated devices streaming in real time: "
         "sim01 moves properly, sim02 drifts into shoulder compensation. Prints the URL and "
@@ -86,8 +112,13 @@ def add_parser(sub: Any) -> None:
     _common(d)
     d.set_defaults(zenoh_listen=None, zenoh_connect=None)
     d.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
-    d.add_argument("--speed", type=float, default=1.0, metavar="X",
-                   help="simulated time per second (default 1: real time)")
+    d.add_argument(
+        "--speed",
+        type=float,
+        default=1.0,
+        metavar="X",
+        help="simulated time per second (default 1: real time)",
+    )
     d.set_defaults(func=cmd_demo)
 
 
@@ -100,16 +131,23 @@ def cmd_serve(args: argparse.Namespace) -> int:
     settings = settings_from_args(args)
     app = create_app(settings)
     app.state.live_required = True  # a service that cannot open Zenoh must not pretend
-    uvicorn.run(app, host=settings.host, port=settings.port, log_level=args.log_level,
-                ws="websockets-sansio", ws_per_message_deflate=settings.ws_compression)
+    uvicorn.run(
+        app,
+        host=settings.host,
+        port=settings.port,
+        log_level=args.log_level,
+        ws="websockets-sansio",
+        ws_per_message_deflate=settings.ws_compression,
+    )
     return 0
 
 
 # --------------------------------------------------------------------------- demo
 
 
-def _stream(device: str, compensating: bool, endpoint: str, speed: float,
-            stop: threading.Event) -> None:
+def _stream(
+    device: str, compensating: bool, endpoint: str, speed: float, stop: threading.Event
+) -> None:
     """One simulated device, session after session, on a continuous clock."""
     from simulator import SimConfig, simulate
     from simulator.publish import Publisher, play, prepare
@@ -120,8 +158,13 @@ def _stream(device: str, compensating: bool, endpoint: str, speed: float,
         pub.announce(device)
         loop = 0
         while not stop.is_set():
-            cfg = SimConfig(seed=seed, duration_s=DEMO_SECONDS, device=device, layout=layout,
-                            t0_s=loop * DEMO_SECONDS)
+            cfg = SimConfig(
+                seed=seed,
+                duration_s=DEMO_SECONDS,
+                device=device,
+                layout=layout,
+                t0_s=loop * DEMO_SECONDS,
+            )
             sim = simulate(cfg)
             outgoing = prepare(_continue_seq(sim.messages, loop))
             pub.declare(outgoing)
@@ -131,8 +174,9 @@ def _stream(device: str, compensating: bool, endpoint: str, speed: float,
             loop += 1
 
 
-def _continue_seq(messages: list[tuple[str, dict[str, Any]]], loop: int
-                  ) -> list[tuple[str, dict[str, Any]]]:
+def _continue_seq(
+    messages: list[tuple[str, dict[str, Any]]], loop: int
+) -> list[tuple[str, dict[str, Any]]]:
     """Sequence numbers go on across loops (a restart would be counted as one)."""
     if loop == 0:
         return messages
@@ -154,16 +198,18 @@ async def _demo_patients(base_url: str, settings: Settings) -> None:
     if creds is None:
         return
     async with httpx.AsyncClient(base_url=base_url) as client:
-        r = await client.post("/api/auth/login",
-                              json={"username": creds.username, "password": creds.password})
+        r = await client.post(
+            "/api/auth/login", json={"username": creds.username, "password": creds.password}
+        )
         if r.status_code != 200:
             return
         headers = {"Authorization": f"Bearer {r.json()['access_token']}"}
         existing = {p["code"] for p in (await client.get("/api/patients", headers=headers)).json()}
         for _, code, _ in DEMO_DEVICES:
             if code not in existing:
-                await client.post("/api/patients", headers=headers,
-                                  json={"code": code, "affected_side": "right"})
+                await client.post(
+                    "/api/patients", headers=headers, json={"code": code, "affected_side": "right"}
+                )
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -177,14 +223,22 @@ def cmd_demo(args: argparse.Namespace) -> int:
     zport = free_port()
     endpoint = f"tcp/127.0.0.1:{zport}"
     data_dir = args.data_dir or Path("data/demo")  # data/ is git-ignored
-    settings = settings_from_args(args, host=host, port=port, data_dir=data_dir,
-                                  zenoh_listen=endpoint)
+    settings = settings_from_args(
+        args, host=host, port=port, data_dir=data_dir, zenoh_listen=endpoint
+    )
     settings = replace_cookie_secure(settings, host)
     app = create_app(settings)
     app.state.live_required = True
-    server = uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level="warning",
-                                           ws="websockets-sansio",
-                                           ws_per_message_deflate=settings.ws_compression))
+    server = uvicorn.Server(
+        uvicorn.Config(
+            app,
+            host=host,
+            port=port,
+            log_level="warning",
+            ws="websockets-sansio",
+            ws_per_message_deflate=settings.ws_compression,
+        )
+    )
     stop = threading.Event()
     streams: list[threading.Thread] = []
 
@@ -209,7 +263,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
         for device, code, what in DEMO_DEVICES:
             print(f"  device {device} ({what}); patient {code}")
             thread = threading.Thread(
-                target=_stream, name=f"demo-{device}", daemon=True,
+                target=_stream,
+                name=f"demo-{device}",
+                daemon=True,
                 args=(device, device == "sim02", endpoint, args.speed, stop),
             )
             thread.start()
@@ -245,4 +301,3 @@ if __name__ == "__main__":  # pragma: no cover
     import backend.cli
 
     sys.exit(backend.cli.main(["demo", *sys.argv[1:]]))
-

@@ -100,10 +100,18 @@ def markdown(rows: Sequence[dict[str, Any]]) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0] if __doc__ else None)
-    ap.add_argument("--data", type=Path, default=None,
-                    help=f"BROAD directory (default ${broad.ENV_DIR} or ../shared/data/broad)")
-    ap.add_argument("--trials", nargs="*", default=None,
-                    help="trial name prefixes or substrings, e.g. 10 21_undisturbed")
+    ap.add_argument(
+        "--data",
+        type=Path,
+        default=None,
+        help=f"BROAD directory (default ${broad.ENV_DIR} or ../shared/data/broad)",
+    )
+    ap.add_argument(
+        "--trials",
+        nargs="*",
+        default=None,
+        help="trial name prefixes or substrings, e.g. 10 21_undisturbed",
+    )
     ap.add_argument("--json", type=Path, default=None, help="write all figures to this file")
     ap.add_argument("--method", choices=["improved", "paper", "both"], default="both")
     args = ap.parse_args(argv)
@@ -123,9 +131,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         for m in methods:
             rows.append(evaluate(p, m))
             print(f"{p.stem} ({m}): {rows[-1]['runtime_s']:.1f} s", file=sys.stderr)
-    print("Pipeline with default parameters. BROAD (Laidig et al. 2021, CC-BY-4.0); virtual elbow "
-          "15 cm along the IMU x axis at 25 Hz; errors over `movement` samples after "
-          "convergence; VQF-alone after the first 5 s.\n")
+    print(
+        "Pipeline with default parameters. BROAD (Laidig et al. 2021, CC-BY-4.0); virtual elbow "
+        "15 cm along the IMU x axis at 25 Hz; errors over `movement` samples after "
+        "convergence; VQF-alone after the first 5 s.\n"
+    )
     print(markdown(rows))
     if args.json is not None:
         args.json.write_text(json.dumps({"trials": rows}, indent=1) + "\n")

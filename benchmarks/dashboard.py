@@ -122,8 +122,9 @@ def start_service(data: Path) -> tuple[subprocess.Popen[bytes], str, str, dict[s
 
 def start_sessions(url: str, creds: dict[str, str], names: list[str]) -> None:
     with httpx.Client(base_url=url, timeout=30) as api:
-        r = api.post("/api/auth/login", json={"username": creds["username"],
-                                              "password": creds["password"]})
+        r = api.post(
+            "/api/auth/login", json={"username": creds["username"], "password": creds["password"]}
+        )
         r.raise_for_status()
         api.headers["Authorization"] = f"Bearer {r.json()['access_token']}"
         api.cookies.clear()
@@ -188,13 +189,15 @@ def measure(url: str, creds: dict[str, str], devices: list[Device], duration: fl
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--devices", type=int, default=4)
     ap.add_argument("--duration", type=float, default=30.0, help="measured seconds")
     ap.add_argument("--no-sessions", action="store_true", help="devices without sessions")
-    ap.add_argument("--chromium", default=os.environ.get("REHAB_TEST_CHROMIUM",
-                                                         "/usr/bin/chromium"))
+    ap.add_argument(
+        "--chromium", default=os.environ.get("REHAB_TEST_CHROMIUM", "/usr/bin/chromium")
+    )
     ap.add_argument("--json", type=Path, help="write the figures here")
     args = ap.parse_args()
     if not Path(args.chromium).exists():
@@ -228,16 +231,24 @@ def main() -> int:
                   machine=f"{platform.machine()}, {os.cpu_count()} CPUs, "
                           f"Python {platform.python_version()}")  # fmt: skip
     ups = result["updates_per_s"]
-    print(f"{args.devices} devices on /grid, {result['seconds']:.1f} s measured "
-          f"({'with' if result['sessions'] else 'without'} sessions)")
+    print(
+        f"{args.devices} devices on /grid, {result['seconds']:.1f} s measured "
+        f"({'with' if result['sessions'] else 'without'} sessions)"
+    )
     for n in names:
-        print(f"  {n}: {ups[n]:5.1f} rendered updates/s, "
-              f"{result['messages_per_s'][n]:5.1f} estimate messages/s")
-    print(f"  page: {result['animation_frames_per_s']:.1f} animation frames/s, "
-          f"{result['long_tasks']} long tasks ({result['long_task_ms']:.0f} ms)")
+        print(
+            f"  {n}: {ups[n]:5.1f} rendered updates/s, "
+            f"{result['messages_per_s'][n]:5.1f} estimate messages/s"
+        )
+    print(
+        f"  page: {result['animation_frames_per_s']:.1f} animation frames/s, "
+        f"{result['long_tasks']} long tasks ({result['long_task_ms']:.0f} ms)"
+    )
     ok = min(ups.values()) >= TARGET_HZ
-    print(f"  slowest device {min(ups.values()):.1f}/s: target ≥ {TARGET_HZ:.0f}/s "
-          f"{'met' if ok else 'NOT met'}")
+    print(
+        f"  slowest device {min(ups.values()):.1f}/s: target ≥ {TARGET_HZ:.0f}/s "
+        f"{'met' if ok else 'NOT met'}"
+    )
     if args.json:
         args.json.write_text(json.dumps(result, indent=1))
     return 0 if ok else 1

@@ -96,8 +96,7 @@ def publisher(args: argparse.Namespace) -> None:
         if robot_t is not None:
             sent[i].append((robot_t, time.time()))
     late = time.monotonic() - (base + schedule[-1][0] - t0)
-    Path(args.out).write_text(json.dumps({"sent": sent, "messages": len(schedule),
-                                          "late_s": late}))
+    Path(args.out).write_text(json.dumps({"sent": sent, "messages": len(schedule), "late_s": late}))
     time.sleep(1.0)
     pub.close()
     print("done", flush=True)
@@ -130,8 +129,9 @@ def subscriber(args: argparse.Namespace) -> None:
 
     def websocket() -> None:
         url = args.url.replace("http://", "ws://") + "/api/ws/live"
-        with connect(url, additional_headers={"Authorization": f"Bearer {args.token}"},
-                     max_size=None) as ws:
+        with connect(
+            url, additional_headers={"Authorization": f"Bearer {args.token}"}, max_size=None
+        ) as ws:
             while not stop.is_set():
                 try:
                     text = ws.recv(timeout=0.5)
@@ -179,8 +179,12 @@ def thread_cpu(pid: int) -> dict[int, tuple[str, float]]:
     return out
 
 
-def latencies(sent: list[list[tuple[float, float]]], recv: dict[str, list[tuple[float, float]]],
-              t_start: float, warmup: float) -> tuple[np.ndarray, int, int]:
+def latencies(
+    sent: list[list[tuple[float, float]]],
+    recv: dict[str, list[tuple[float, float]]],
+    t_start: float,
+    warmup: float,
+) -> tuple[np.ndarray, int, int]:
     """Latencies (s) of the steady state, and (robot samples sent, rows received) overall."""
     lat: list[float] = []
     n_sent = n_recv = 0
@@ -196,8 +200,12 @@ def stats_ms(a: np.ndarray) -> dict[str, float | None]:
     if not len(a):
         return {"p50": None, "p90": None, "p99": None, "max": None}
     p50, p90, p99 = np.percentile(a, [50, 90, 99]) * 1e3
-    return {"p50": round(float(p50), 2), "p90": round(float(p90), 2),
-            "p99": round(float(p99), 2), "max": round(float(a.max() * 1e3), 2)}
+    return {
+        "p50": round(float(p50), 2),
+        "p90": round(float(p90), 2),
+        "p99": round(float(p99), 2),
+        "max": round(float(a.max() * 1e3), 2),
+    }
 
 
 def run(
@@ -216,9 +224,24 @@ def run(
     port, zport = free_port(), free_port()
     endpoint, url = f"tcp/127.0.0.1:{zport}", f"http://127.0.0.1:{port}"
     service = subprocess.Popen(
-        [sys.executable, "-m", "backend.cli", "serve", "--host", "127.0.0.1", "--port", str(port),
-         "--zenoh-listen", endpoint, "--data-dir", str(work / "data"), "--log-level", "warning"],
-        cwd=REPO, stdout=subprocess.DEVNULL,
+        [
+            sys.executable,
+            "-m",
+            "backend.cli",
+            "serve",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(port),
+            "--zenoh-listen",
+            endpoint,
+            "--data-dir",
+            str(work / "data"),
+            "--log-level",
+            "warning",
+        ],
+        cwd=REPO,
+        stdout=subprocess.DEVNULL,
     )
     procs: list[subprocess.Popen[str]] = []
     try:
@@ -235,23 +258,54 @@ def run(
         creds = read_admin_credentials(Settings(data_dir=work / "data"))
         assert creds is not None
         api = httpx.Client(base_url=url, timeout=60)
-        token = api.post("/api/auth/login", json={"username": creds.username,
-                                                  "password": creds.password}).json()["access_token"]
+        token = api.post(
+            "/api/auth/login", json={"username": creds.username, "password": creds.password}
+        ).json()["access_token"]
         api.cookies.clear()
         api.headers["Authorization"] = f"Bearer {token}"
         me = [sys.executable, __file__]
         sub = subprocess.Popen(
-            [*me, "--role", "subscriber", "--endpoint", endpoint, "--url", url, "--token", token,
-             "--out", str(work / "sub.json")],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=REPO)
+            [
+                *me,
+                "--role",
+                "subscriber",
+                "--endpoint",
+                endpoint,
+                "--url",
+                url,
+                "--token",
+                token,
+                "--out",
+                str(work / "sub.json"),
+            ],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+            cwd=REPO,
+        )
         procs.append(sub)
         assert sub.stdout is not None and sub.stdin is not None
         sub.stdout.readline()
         pub = subprocess.Popen(
-            [*me, "--role", "publisher", "--endpoint", endpoint, "--devices", str(n),
-             "--duration", str(duration), "--out", str(work / "pub.json"),
-             *(["--lockstep"] if lockstep else [])],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=REPO)
+            [
+                *me,
+                "--role",
+                "publisher",
+                "--endpoint",
+                endpoint,
+                "--devices",
+                str(n),
+                "--duration",
+                str(duration),
+                "--out",
+                str(work / "pub.json"),
+                *(["--lockstep"] if lockstep else []),
+            ],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+            cwd=REPO,
+        )
         procs.append(pub)
         assert pub.stdout is not None and pub.stdin is not None
         say("publisher:", pub.stdout.readline().strip())
@@ -262,8 +316,9 @@ def run(
             time.sleep(0.2)
         if sessions:
             for i in range(n):
-                pid = api.post("/api/patients", json={"code": f"bench-{i}",
-                                                      "affected_side": "right"}).json()["id"]
+                pid = api.post(
+                    "/api/patients", json={"code": f"bench-{i}", "affected_side": "right"}
+                ).json()["id"]
                 r = api.post("/api/sessions", json={"patient_id": pid, "device": device_name(i)})
                 assert r.status_code == 201, r.text
         time.sleep(1.0)
@@ -298,27 +353,41 @@ def run(
         devices = {d["name"]: d for d in api.get("/api/devices").json()}
         pubres = json.loads((work / "pub.json").read_text())
         subres = json.loads((work / "sub.json").read_text())
-        received = sum((d.get("stats") or {}).get("ingest", {}).get("messages", 0)
-                       for d in devices.values())
-        dropped = sum((d.get("stats") or {}).get("ingest", {}).get("dropped", 0)
-                      for d in devices.values())
+        received = sum(
+            (d.get("stats") or {}).get("ingest", {}).get("messages", 0) for d in devices.values()
+        )
+        dropped = sum(
+            (d.get("stats") or {}).get("ingest", {}).get("dropped", 0) for d in devices.values()
+        )
         zl, z_sent, z_recv = latencies(pubres["sent"], subres["zenoh"], t_start, WARMUP_S)
         wl, _, w_recv = latencies(pubres["sent"], subres["websocket"], t_start, WARMUP_S)
         zl_all, _, _ = latencies(pubres["sent"], subres["zenoh"], t_start, 0.0)
         steady = [s for s in samples if s[0] - t_start >= WARMUP_S]
-        cpu_steady = ((steady[-1][1] - steady[0][1]) / (steady[-1][0] - steady[0][0])
-                      if len(steady) > 2 else None)
+        cpu_steady = (
+            (steady[-1][1] - steady[0][1]) / (steady[-1][0] - steady[0][0])
+            if len(steady) > 2
+            else None
+        )
         result = {
-            "devices": n, "duration_s": duration, "sessions": sessions, "lockstep": lockstep,
-            "messages_published": pubres["messages"], "messages_received": received,
-            "messages_lost": pubres["messages"] - received, "messages_dropped": dropped,
-            "robot_samples": z_sent, "estimates_received_zenoh": z_recv,
+            "devices": n,
+            "duration_s": duration,
+            "sessions": sessions,
+            "lockstep": lockstep,
+            "messages_published": pubres["messages"],
+            "messages_received": received,
+            "messages_lost": pubres["messages"] - received,
+            "messages_dropped": dropped,
+            "robot_samples": z_sent,
+            "estimates_received_zenoh": z_recv,
             "estimates_received_websocket": w_recv,
             "publisher_late_s": round(pubres["late_s"], 3),
-            "latency_zenoh_ms": stats_ms(zl), "latency_zenoh_all_ms": stats_ms(zl_all),
+            "latency_zenoh_ms": stats_ms(zl),
+            "latency_zenoh_all_ms": stats_ms(zl_all),
             "latency_websocket_ms": stats_ms(wl),
             "service_cpu_percent": round(100 * (cpu1 - cpu0) / wall, 1),
-            "service_cpu_percent_steady": None if cpu_steady is None else round(100 * cpu_steady, 1),
+            "service_cpu_percent_steady": None
+            if cpu_steady is None
+            else round(100 * cpu_steady, 1),
             "service_main_thread_cpu_percent": round(100 * main_cpu / wall, 1),
             "service_threads_cpu_percent": {
                 f"{name} {tid}": round(100 * cpu / wall, 1) for tid, (name, cpu) in busiest
@@ -330,7 +399,8 @@ def run(
             "cpu_per_device_percent": round(100 * (cpu1 - cpu0) / wall / n, 2),
         }
         result["meets_target"] = bool(
-            result["messages_lost"] == 0 and z_recv == z_sent
+            result["messages_lost"] == 0
+            and z_recv == z_sent
             and result["latency_zenoh_ms"]["p99"] is not None
             and result["latency_zenoh_ms"]["p99"] <= TARGET_P99_MS
         )
@@ -369,8 +439,11 @@ def sweep(duration: float, start: int, sessions: bool, lockstep: bool = False) -
             lo = mid
         else:
             hi = mid
-    return {"capacity_devices": lo, "target_p99_ms": TARGET_P99_MS,
-            "runs": [runs[k] for k in sorted(runs)]}
+    return {
+        "capacity_devices": lo,
+        "target_p99_ms": TARGET_P99_MS,
+        "runs": [runs[k] for k in sorted(runs)],
+    }
 
 
 def report(r: dict[str, Any]) -> str:
@@ -389,16 +462,23 @@ def report(r: dict[str, Any]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--devices", type=int, default=50)
     ap.add_argument("--duration", type=float, default=120.0, metavar="S")
     ap.add_argument("--sweep", action="store_true", help="find the largest N meeting p99 ≤ 50 ms")
-    ap.add_argument("--lockstep", action="store_true",
-                    help="all devices start within 40 ms with the same data (worst case)")
+    ap.add_argument(
+        "--lockstep",
+        action="store_true",
+        help="all devices start within 40 ms with the same data (worst case)",
+    )
     ap.add_argument("--sweep-start", type=int, default=10)
-    ap.add_argument("--no-sessions", action="store_true",
-                    help="devices stream without a session (no recording, no cycle storage)")
+    ap.add_argument(
+        "--no-sessions",
+        action="store_true",
+        help="devices stream without a session (no recording, no cycle storage)",
+    )
     ap.add_argument("--json", metavar="FILE", help="write the results as JSON")
     # internal: the publisher and subscriber processes
     ap.add_argument("--role", choices=["publisher", "subscriber"], help=argparse.SUPPRESS)

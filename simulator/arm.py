@@ -150,9 +150,11 @@ class ArmModel:
         # so proper cycles never leave the 0.10 m tolerance.
         n_cyc = len(starts) + 8
         self._proper_lean = _uniform_bspline(
-            -4.0, 1.0, subject.proper_lean_m * rng.uniform(0.6, 1.4, n_cyc + 4))
+            -4.0, 1.0, subject.proper_lean_m * rng.uniform(0.6, 1.4, n_cyc + 4)
+        )
         self._comp_lean = _uniform_bspline(
-            -4.0, 1.0, subject.compensatory_lean_m * rng.uniform(0.95, 1.05, n_cyc + 4))
+            -4.0, 1.0, subject.compensatory_lean_m * rng.uniform(0.95, 1.05, n_cyc + 4)
+        )
 
         # Random sway of the shoulder and of the swivel; B-spline values stay inside the
         # coefficients' range, so the bounds below are hard bounds.
@@ -161,7 +163,8 @@ class ArmModel:
         self._sway = _uniform_bspline(-10.0 - 3 * SWAY_KNOT_S, SWAY_KNOT_S, sway)
         n_sw = int(np.ceil((horizon + 10.0) / SWIVEL_KNOT_S)) + 4
         self._swivel_noise = _uniform_bspline(
-            -10.0 - 3 * SWIVEL_KNOT_S, SWIVEL_KNOT_S, rng.uniform(-4.0, 4.0, n_sw))
+            -10.0 - 3 * SWIVEL_KNOT_S, SWIVEL_KNOT_S, rng.uniform(-4.0, 4.0, n_sw)
+        )
 
     # ------------------------------------------------------------------ time envelopes
 
@@ -270,8 +273,7 @@ class ArmModel:
         xy = self.path(phi)
         s = self.shoulder(tau, phi, xy)
         w = self.wrist(tau, xy)
-        e = elbow_ik(s, w, self.swivel(tau, xy), self.subject.upper_arm_m,
-                     self.subject.forearm_m)
+        e = elbow_ik(s, w, self.swivel(tau, xy), self.subject.upper_arm_m, self.subject.forearm_m)
         return Pose(s, e, w, segment_frame(s, e, w))
 
 
@@ -293,7 +295,8 @@ def elbow_ik(shoulder: F64, wrist: F64, swivel: F64, upper: float, fore: float) 
     u = _unit(down - (n @ down)[:, None] * n)
     lat = np.cross(u, n)
     return np.asarray(
-        shoulder + along[:, None] * n
+        shoulder
+        + along[:, None] * n
         + radius[:, None] * (np.cos(swivel)[:, None] * u + np.sin(swivel)[:, None] * lat),
         dtype=np.float64,
     )
@@ -315,5 +318,12 @@ def elbow_angle_deg(shoulder: F64, elbow: F64, wrist: F64) -> F64:
     return np.asarray(np.degrees(np.arccos(cos)))
 
 
-__all__ = ["ArmModel", "Pose", "RectanglePath", "elbow_angle_deg", "elbow_ik",
-           "segment_frame", "smoothstep"]
+__all__ = [
+    "ArmModel",
+    "Pose",
+    "RectanglePath",
+    "elbow_angle_deg",
+    "elbow_ik",
+    "segment_frame",
+    "smoothstep",
+]

@@ -31,26 +31,54 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
         f"cuffs) and write DIR/{RECORDING_NAME}, DIR/{TRUTH_NAME} and DIR/{SUBJECT_NAME}.",
     )
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--duration", type=float, default=480.0, metavar="S",
-                   help="session length in seconds (default 480)")
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=480.0,
+        metavar="S",
+        help="session length in seconds (default 480)",
+    )
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
-    p.add_argument("--imu-rate", type=float, default=100.0, metavar="HZ",
-                   help="IMU sampling rate (default 100)")
-    p.add_argument("--robot-rate", type=float, default=25.0, metavar="HZ",
-                   help="robot sampling rate (default 25)")
-    p.add_argument("--imu-batch", type=int, default=4, metavar="K",
-                   help="IMU samples per message (default 4)")
+    p.add_argument(
+        "--imu-rate",
+        type=float,
+        default=100.0,
+        metavar="HZ",
+        help="IMU sampling rate (default 100)",
+    )
+    p.add_argument(
+        "--robot-rate",
+        type=float,
+        default=25.0,
+        metavar="HZ",
+        help="robot sampling rate (default 25)",
+    )
+    p.add_argument(
+        "--imu-batch", type=int, default=4, metavar="K", help="IMU samples per message (default 4)"
+    )
     p.add_argument("--device", default="sim01", help="device name in the keys (default sim01)")
-    p.add_argument("--cycle-events", action="store_true",
-                   help="publish a cycle_start event at every cycle start")
-    p.add_argument("--publish", metavar="ENDPOINT",
-                   help="also publish the session over Zenoh to ENDPOINT (a service or a "
-                   "router, e.g. tcp/127.0.0.1:7447), timed by its timestamps")
-    p.add_argument("--speed", type=float, default=1.0, metavar="X",
-                   help="with --publish: 1 = real time (default), 20 = twenty times faster, "
-                   "0 = as fast as possible")
-    p.add_argument("--ideal", action="store_true",
-                   help="switch every sensor, robot and placement error off")
+    p.add_argument(
+        "--cycle-events",
+        action="store_true",
+        help="publish a cycle_start event at every cycle start",
+    )
+    p.add_argument(
+        "--publish",
+        metavar="ENDPOINT",
+        help="also publish the session over Zenoh to ENDPOINT (a service or a "
+        "router, e.g. tcp/127.0.0.1:7447), timed by its timestamps",
+    )
+    p.add_argument(
+        "--speed",
+        type=float,
+        default=1.0,
+        metavar="X",
+        help="with --publish: 1 = real time (default), 20 = twenty times faster, "
+        "0 = as fast as possible",
+    )
+    p.add_argument(
+        "--ideal", action="store_true", help="switch every sensor, robot and placement error off"
+    )
     p.set_defaults(func=run)
     return p
 
@@ -69,9 +97,14 @@ def run(args: argparse.Namespace) -> int:
     """Simulate and write the three files; print a one-line summary. Returns the exit code."""
     try:
         cfg = SimConfig(
-            seed=args.seed, duration_s=args.duration, imu_rate_hz=args.imu_rate,
-            robot_rate_hz=args.robot_rate, imu_batch=args.imu_batch, device=args.device,
-            cycle_events=args.cycle_events, ideal=args.ideal,
+            seed=args.seed,
+            duration_s=args.duration,
+            imu_rate_hz=args.imu_rate,
+            robot_rate_hz=args.robot_rate,
+            imu_batch=args.imu_batch,
+            device=args.device,
+            cycle_events=args.cycle_events,
+            ideal=args.ideal,
         )
     except ValueError as exc:
         print(f"simulate: {exc}", file=sys.stderr)

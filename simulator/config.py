@@ -8,8 +8,12 @@ from dataclasses import dataclass
 from simulator.subject import Subject
 
 REST, PROPER, TRANSITION, COMPENSATORY = 0, 1, 2, 3
-PHASE_CODES = {"rest": REST, "proper": PROPER, "transition": TRANSITION,
-               "compensatory": COMPENSATORY}
+PHASE_CODES = {
+    "rest": REST,
+    "proper": PROPER,
+    "transition": TRANSITION,
+    "compensatory": COMPENSATORY,
+}
 PHASE_NAMES = {v: k for k, v in PHASE_CODES.items()}
 
 Layout = tuple[tuple[str, float], ...]
@@ -25,8 +29,17 @@ DEFAULT_LAYOUT_480: Layout = (
 )
 
 ERROR_SWITCHES = (
-    "gyro_noise", "acc_noise", "gyro_bias", "acc_bias", "misalignment", "radial_offset",
-    "wobble", "robot_noise", "rope", "latency", "reference_noise",
+    "gyro_noise",
+    "acc_noise",
+    "gyro_bias",
+    "acc_bias",
+    "misalignment",
+    "radial_offset",
+    "wobble",
+    "robot_noise",
+    "rope",
+    "latency",
+    "reference_noise",
 )
 
 _DEVICE_RE = re.compile(r"[A-Za-z0-9_-]{1,64}")

@@ -60,8 +60,9 @@ def mount_geometry(subject: Subject) -> tuple[F64, F64, F64]:
     r0 = np.array([subject.upper_arm_m - subject.imu_to_elbow_m, 0.0, 0.0])
     r0 = r0 + subject.imu_radial_m * radial_dir
     tangential = np.cross([1.0, 0.0, 0.0], radial_dir)
-    q_mount = quat.from_axis_angle(np.array(subject.mount_axis),
-                                   np.radians(subject.mount_angle_deg))
+    q_mount = quat.from_axis_angle(
+        np.array(subject.mount_axis), np.radians(subject.mount_angle_deg)
+    )
     return r0, tangential, q_mount
 
 
@@ -81,8 +82,9 @@ def _oscillator(u: F64, dt: float, hz: float, zeta: float) -> tuple[F64, F64]:
 
 def _vee_skew(m: F64) -> F64:
     """Vector of the skew-symmetric part of (N,3,3) matrices."""
-    return 0.5 * np.stack((m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0],
-                           m[:, 1, 0] - m[:, 0, 1]), axis=-1)
+    return 0.5 * np.stack(
+        (m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]), axis=-1
+    )
 
 
 def _bone(arm: ArmModel, tau: F64, r0: F64) -> tuple[Pose, F64, F64, F64]:
@@ -136,7 +138,11 @@ def imu_truth(
         on = idx % sub == 0
         k = idx[on] // sub
         shoulder[k], elbow[k], wrist[k], rot[k] = (
-            pose.shoulder[on], pose.elbow[on], pose.wrist[on], pose.rot[on])
+            pose.shoulder[on],
+            pose.elbow[on],
+            pose.wrist[on],
+            pose.rot[on],
+        )
         omega[k], omega_dot[k], acc_bone[k] = w[on], dw[on], acc[on]
         if progress is not None:
             progress(idx.shape[0])
@@ -147,8 +153,9 @@ def imu_truth(
     trans_gain = subject.wobble_mm_per_m_s2 * 1e-3 * np.array([WOBBLE_AXIAL, 1.0, 1.0])
     rot_gain = np.radians(subject.wobble_deg_per_m_s2)
     if trans_gain.any() or rot_gain:
-        drive = np.column_stack((-w2 * trans_gain * acc_bone_a,
-                                 -w2 * rot_gain * (acc_bone_a @ tangential)))
+        drive = np.column_stack(
+            (-w2 * trans_gain * acc_bone_a, -w2 * rot_gain * (acc_bone_a @ tangential))
+        )
         x, dx = _oscillator(drive, dt, subject.wobble_hz, subject.wobble_damping)
         ddx = drive - 2 * subject.wobble_damping * np.sqrt(w2) * dx - w2 * x
         x, dx, ddx = x[::sub], dx[::sub], ddx[::sub]
@@ -159,8 +166,12 @@ def imu_truth(
     wob, dwob, ddwob = x[:, :3], dx[:, :3], ddx[:, :3]
     alpha, dalpha = x[:, 3], dx[:, 3]
     position = shoulder + np.einsum("nij,nj->ni", rot, r0 + wob)
-    relative = (np.cross(omega_dot, wob) + np.cross(omega, np.cross(omega, wob))
-                + 2 * np.cross(omega, dwob) + ddwob)  # d²/dt² of R·w, in A
+    relative = (
+        np.cross(omega_dot, wob)
+        + np.cross(omega, np.cross(omega, wob))
+        + 2 * np.cross(omega, dwob)
+        + ddwob
+    )  # d²/dt² of R·w, in A
     acc_world = acc_bone + np.einsum("nij,nj->ni", rot, relative)
     axis = np.array(subject.wobble_axis)
     q_wobble = quat.from_axis_angle(np.broadcast_to(axis, (n_samples, 3)), alpha)

@@ -211,16 +211,28 @@ def publish(
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--speed", type=float, default=1.0, metavar="X",
-                   help="1 = real time (default), 20 = twenty times faster, 0 = no waiting")
+    p.add_argument(
+        "--speed",
+        type=float,
+        default=1.0,
+        metavar="X",
+        help="1 = real time (default), 20 = twenty times faster, 0 = no waiting",
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m simulator.publish", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        prog="python -m simulator.publish",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     ap.add_argument("recording", type=Path, help="contract recording (.jsonl or .jsonl.gz)")
-    ap.add_argument("--connect", default="tcp/127.0.0.1:7447", metavar="ENDPOINT",
-                    help="Zenoh endpoint of the service or router (default %(default)s)")
+    ap.add_argument(
+        "--connect",
+        default="tcp/127.0.0.1:7447",
+        metavar="ENDPOINT",
+        help="Zenoh endpoint of the service or router (default %(default)s)",
+    )
     ap.add_argument("--prefix", default=keys.DEFAULT_PREFIX)
     add_arguments(ap)
     args = ap.parse_args(argv)

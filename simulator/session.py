@@ -41,8 +41,7 @@ class Simulation:
     def summary(self) -> str:
         """One line for humans."""
         c = self.truth.cycles
-        counts = {name: int(np.sum(c.phase == code)) for code, name in PHASE_NAMES.items()
-                  if code}
+        counts = {name: int(np.sum(c.phase == code)) for code, name in PHASE_NAMES.items() if code}
         return (
             f"seed {self.config.seed}: {self.config.duration_s:g} s, "
             f"{self.n_imu_samples} IMU / {self.n_robot_samples} robot samples, "
@@ -58,8 +57,9 @@ def _round(x: F64, decimals: int, enabled: bool) -> F64:
     return np.round(x, decimals) if enabled else x
 
 
-def _cycles(arm: ArmModel, spans: list[tuple[int, float, float]], duration: float,
-            t0: float) -> tuple[Cycles, F64]:
+def _cycles(
+    arm: ArmModel, spans: list[tuple[int, float, float]], duration: float, t0: float
+) -> tuple[Cycles, F64]:
     """Complete cycles with their true verdicts, and every cycle start within the session."""
     phi_end = float(arm.phase(np.array([duration]))[0])
     n_starts = int(np.floor(phi_end))
@@ -79,8 +79,11 @@ def _cycles(arm: ArmModel, spans: list[tuple[int, float, float]], duration: floa
         peaks.append(float(disp.max()))
     frac = np.array(fractions)
     cycles = Cycles(
-        start=start + t0, end=end + t0, phase=np.array(labels, dtype=np.int8),
-        outside_fraction=frac, peak_displacement_m=np.array(peaks),
+        start=start + t0,
+        end=end + t0,
+        phase=np.array(labels, dtype=np.int8),
+        outside_fraction=frac,
+        peak_displacement_m=np.array(peaks),
         compensatory=frac > MAX_OUTSIDE_FRACTION,
     )
     return cycles, bounds
@@ -99,8 +102,15 @@ def _corners(arm: ArmModel, duration: float) -> tuple[F64, F64]:
     return tau, np.column_stack((d2, np.zeros(d2.shape[0])))
 
 
-def _messages(cfg: SimConfig, t_imu: F64, gyr: F64, acc: F64, robot: RobotSamples,
-              t_robot: F64, events: list[wire.EventMessage]) -> Messages:
+def _messages(
+    cfg: SimConfig,
+    t_imu: F64,
+    gyr: F64,
+    acc: F64,
+    robot: RobotSamples,
+    t_robot: F64,
+    events: list[wire.EventMessage],
+) -> Messages:
     """Wire messages sorted by arrival: IMU when its last sample is taken, robot at its stamp
     (already latency-late), events at their stamp; ties IMU, then robot, then events."""
     rounded = cfg.round_output
@@ -141,11 +151,19 @@ def simulate(config: SimConfig | None = None, *, progress: bool = False) -> Simu
     # IMU
     n_imu = int(np.floor(duration * cfg.imu_rate_hz + 1e-9)) + 1
     points = grid_points(n_imu, cfg.imu_rate_hz)
-    with tqdm(total=points, unit="pt", desc="simulate", leave=False,
-              disable=not progress or points < PROGRESS_MIN_POINTS) as bar:
+    with tqdm(
+        total=points,
+        unit="pt",
+        desc="simulate",
+        leave=False,
+        disable=not progress or points < PROGRESS_MIN_POINTS,
+    ) as bar:
         kin = imu_truth(arm, subject, n_imu, cfg.imu_rate_hz, progress=bar.update)
     readings = add_errors(
-        kin, subject, rng_imu, cfg.imu_rate_hz,
+        kin,
+        subject,
+        rng_imu,
+        cfg.imu_rate_hz,
         gyro_noise_rad_s=cfg.gyro_noise_rad_s if cfg.enabled("gyro_noise") else 0.0,
         acc_noise_m_s2=cfg.acc_noise_m_s2 if cfg.enabled("acc_noise") else 0.0,
         gyro_bias_walk_dps=cfg.gyro_bias_walk_dps,
@@ -156,11 +174,17 @@ def simulate(config: SimConfig | None = None, *, progress: bool = False) -> Simu
     # Robot
     corner_tau, corner_dir = _corners(arm, duration)
     robot = robot_samples(
-        arm, subject, rng_robot,
-        rate_hz=cfg.robot_rate_hz, time_offset_s=cfg.robot_time_offset_s, duration_s=duration,
-        cuff_to_elbow_m=cfg.cuff_to_elbow_m, wrist_cuff_m=cfg.wrist_cuff_m,
+        arm,
+        subject,
+        rng_robot,
+        rate_hz=cfg.robot_rate_hz,
+        time_offset_s=cfg.robot_time_offset_s,
+        duration_s=duration,
+        cuff_to_elbow_m=cfg.cuff_to_elbow_m,
+        wrist_cuff_m=cfg.wrist_cuff_m,
         noise_m=cfg.robot_noise_m if cfg.enabled("robot_noise") else 0.0,
-        corner_tau=corner_tau, corner_dir=corner_dir,
+        corner_tau=corner_tau,
+        corner_dir=corner_dir,
     )
     t_robot = np.round(cfg.t0_s + robot.tau, TIME_DECIMALS)
 
@@ -175,24 +199,41 @@ def simulate(config: SimConfig | None = None, *, progress: bool = False) -> Simu
     j = kin.pose
     disp = np.linalg.norm((j.shoulder - arm.nominal_shoulder)[:, :2], axis=1)
     truth = Truth(
-        t=t_imu, shoulder=j.shoulder, elbow=j.elbow, wrist=j.wrist,
+        t=t_imu,
+        shoulder=j.shoulder,
+        elbow=j.elbow,
+        wrist=j.wrist,
         elbow_angle_deg=elbow_angle_deg(j.shoulder, j.elbow, j.wrist),
-        q_ra=kin.q_segment, q_imu=kin.q_sensor, imu_position=kin.position,
-        gyro_bias=readings.gyro_bias, shoulder_displacement_m=disp, phase=phase,
-        cycle=cycle.astype(np.int64), nominal_shoulder=arm.nominal_shoulder.copy(),
-        corner_t=corner_tau + cfg.t0_s, cycles=cycles,
+        q_ra=kin.q_segment,
+        q_imu=kin.q_sensor,
+        imu_position=kin.position,
+        gyro_bias=readings.gyro_bias,
+        shoulder_displacement_m=disp,
+        phase=phase,
+        cycle=cycle.astype(np.int64),
+        nominal_shoulder=arm.nominal_shoulder.copy(),
+        corner_t=corner_tau + cfg.t0_s,
+        cycles=cycles,
     )
 
     # Events: the therapist's shoulder reference halfway through the rest; cycle markers.
     ref_point = arm.nominal_shoulder + np.array(subject.reference_error_m)
-    events = [wire.EventMessage(
-        cfg.device, float(np.round(cfg.t0_s + 0.5 * arm.rest_end, TIME_DECIMALS)),
-        "shoulder_reference", _round(ref_point, 6, cfg.round_output))]
+    events = [
+        wire.EventMessage(
+            cfg.device,
+            float(np.round(cfg.t0_s + 0.5 * arm.rest_end, TIME_DECIMALS)),
+            "shoulder_reference",
+            _round(ref_point, 6, cfg.round_output),
+        )
+    ]
     if cfg.cycle_events:
         for b in bounds:
             if b <= duration:
-                events.append(wire.EventMessage(
-                    cfg.device, float(np.round(cfg.t0_s + b, TIME_DECIMALS)), "cycle_start"))
+                events.append(
+                    wire.EventMessage(
+                        cfg.device, float(np.round(cfg.t0_s + b, TIME_DECIMALS)), "cycle_start"
+                    )
+                )
 
     messages = _messages(cfg, t_imu, readings.gyr, readings.acc, robot, t_robot, events)
     bias_world = quat.rotate(kin.q_sensor, readings.gyro_bias)

@@ -73,8 +73,7 @@ class Subject:
         unknown = set(obj) - names
         if unknown:
             raise ValueError(f"unknown subject fields: {sorted(unknown)}")
-        kwargs: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v
-                                  for k, v in obj.items()}
+        kwargs: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in obj.items()}
         return cls(**kwargs)
 
 

@@ -38,10 +38,21 @@ class Cycles:
     def to_list(self) -> list[dict[str, Any]]:
         """Rows shaped like ``report.json``'s cycles, plus ``phase``."""
         return [
-            {"start": float(s), "end": float(e), "outside_fraction": float(f),
-             "compensatory": bool(c), "phase": int(p)}
-            for s, e, f, c, p in zip(self.start, self.end, self.outside_fraction,
-                                     self.compensatory, self.phase, strict=True)
+            {
+                "start": float(s),
+                "end": float(e),
+                "outside_fraction": float(f),
+                "compensatory": bool(c),
+                "phase": int(p),
+            }
+            for s, e, f, c, p in zip(
+                self.start,
+                self.end,
+                self.outside_fraction,
+                self.compensatory,
+                self.phase,
+                strict=True,
+            )
         ]
 
 

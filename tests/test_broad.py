@@ -85,8 +85,10 @@ def test_errors_nan_rows_and_half_turn() -> None:
 
 def test_align_heading_recovers_offset() -> None:
     q_ref = _rand_quats(400, seed=3)
-    noise = broad.quat_mul(broad.quat_z(np.radians(np.random.default_rng(4).normal(0, 1, 400))),
-                           np.broadcast_to(_quat_x(np.radians(0.5)), q_ref.shape))
+    noise = broad.quat_mul(
+        broad.quat_z(np.radians(np.random.default_rng(4).normal(0, 1, 400))),
+        np.broadcast_to(_quat_x(np.radians(0.5)), q_ref.shape),
+    )
     q_est = broad.quat_mul(broad.quat_z(np.radians(37.0)), broad.quat_mul(noise, q_ref))
     q_est[::7] *= -1.0  # quaternion sign must not matter
     aligned, delta = broad.align_heading(q_est, q_ref)
@@ -103,8 +105,9 @@ def test_score_trial_on_constructed_stream() -> None:
     q_ref[3000:3050] = np.nan  # lost tracking
     movement = np.ones(t.size, dtype=bool)
     movement[:500] = False
-    truth = broad.Truth(t, q_ref, movement, t[::4], np.zeros((t[::4].size, 3)), 0.0,
-                        np.zeros(3), 0.0)
+    truth = broad.Truth(
+        t, q_ref, movement, t[::4], np.zeros((t[::4].size, 3)), 0.0, np.zeros(3), 0.0
+    )
     t_est = np.arange(0.0, 59.9, 0.04)
     q_true = broad.interp_quat(t, q_ref, t_est)
     q_est = broad.quat_mul(broad.quat_z(np.radians(3.0)), q_true)
@@ -213,8 +216,9 @@ def test_virtual_elbow_geometry(
     tr = converted.truth
     t_opt = np.arange(trial.n) / trial.rate_hz + tr.lag_s
     good = trial.optical_valid
-    pos_w = np.stack([np.interp(tr.robot_t, t_opt[good], trial.opt_pos[good, i]) for i in range(3)],
-                     axis=1)
+    pos_w = np.stack(
+        [np.interp(tr.robot_t, t_opt[good], trial.opt_pos[good, i]) for i in range(3)], axis=1
+    )
     yaw = broad.quat_z(np.radians(tr.robot_yaw_deg))
     pos_r = broad.quat_rotate(np.broadcast_to(yaw, (pos_w.shape[0], 4)), pos_w)
     q = broad.interp_quat(tr.t, tr.q_ref, tr.robot_t)
@@ -248,8 +252,12 @@ def test_elbow_acceleration_matches_imu(trial: broad.Trial, converted: broad.Con
     a, b = a_imu_g[sl], a_rob[sl]
     rel = np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1)) / np.mean(np.sum(b**2, axis=1)))
     assert rel < 0.3
-    delta = np.degrees(np.arctan2(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]),
-                                  np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1])))
+    delta = np.degrees(
+        np.arctan2(
+            np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]),
+            np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]),
+        )
+    )
     assert abs(delta) < 3.0
 
 

@@ -36,15 +36,37 @@ Rows = dict[str, list[Any]]
 # Contract §7 float columns, in the order of estimates.csv (heading_converged and state are
 # not floats: they travel beside the block)
 CONTRACT_FLOATS = (
-    "t", "elbow_x", "elbow_y", "elbow_z", "shoulder_x", "shoulder_y", "shoulder_z",
-    "elbow_angle_deg", "heading_offset_deg", "shoulder_displacement_m",
+    "t",
+    "elbow_x",
+    "elbow_y",
+    "elbow_z",
+    "shoulder_x",
+    "shoulder_y",
+    "shoulder_z",
+    "elbow_angle_deg",
+    "heading_offset_deg",
+    "shoulder_displacement_m",
 )
 DISPLAY_EXTRA = (
-    "upper_arm_elevation_deg", "upper_arm_azimuth_deg", "heading_confidence",
-    "nominal_x", "nominal_y", "nominal_z", "wrist_x", "wrist_y", "wrist_z",
+    "upper_arm_elevation_deg",
+    "upper_arm_azimuth_deg",
+    "heading_confidence",
+    "nominal_x",
+    "nominal_y",
+    "nominal_z",
+    "wrist_x",
+    "wrist_y",
+    "wrist_z",
 )
 OVERLAY_COLUMNS = (
-    "t", "wrist_x", "wrist_y", "wrist_z", "shoulder_displacement_m", "dx", "dy", "state",
+    "t",
+    "wrist_x",
+    "wrist_y",
+    "wrist_z",
+    "shoulder_displacement_m",
+    "dx",
+    "dy",
+    "state",
 )
 _OVERLAY_FLOATS = OVERLAY_COLUMNS[:-1]
 # pipeline state code (-1 none yet, 0 ok, 1 outside, 2 warning) + 1 → its name
@@ -81,11 +103,19 @@ class Block:
 
 
 _ROW_SOURCES = (
-    "t", "elbow", "shoulder", "elbow_angle_deg", "heading_offset_deg", "shoulder_displacement_m",
+    "t",
+    "elbow",
+    "shoulder",
+    "elbow_angle_deg",
+    "heading_offset_deg",
+    "shoulder_displacement_m",
 )
 _DISPLAY_SOURCES = (
-    "upper_arm_elevation_deg", "upper_arm_azimuth_deg", "heading_confidence",
-    "nominal_shoulder", "wrist",
+    "upper_arm_elevation_deg",
+    "upper_arm_azimuth_deg",
+    "heading_confidence",
+    "nominal_shoulder",
+    "wrist",
 )
 # matrix columns of a pipeline row table: the float columns, then heading_converged
 _CONTRACT_INDEX = column_index((*_ROW_SOURCES, "heading_converged"))
@@ -106,28 +136,38 @@ def estimate_block(rows: Mapping[str, NDArray[Any]], display: bool) -> Block:
         )
     if len(t) < LIST_ROWS:
         values: list[Column] = [
-            t.tolist(), *rows["elbow"].T.tolist(), *rows["shoulder"].T.tolist(),
-            rows["elbow_angle_deg"].tolist(), rows["heading_offset_deg"].tolist(),
+            t.tolist(),
+            *rows["elbow"].T.tolist(),
+            *rows["shoulder"].T.tolist(),
+            rows["elbow_angle_deg"].tolist(),
+            rows["heading_offset_deg"].tolist(),
             rows["shoulder_displacement_m"].tolist(),
         ]
         if display:
             values += [
-                rows["upper_arm_elevation_deg"].tolist(), rows["upper_arm_azimuth_deg"].tolist(),
-                rows["heading_confidence"].tolist(), *rows["nominal_shoulder"].T.tolist(),
+                rows["upper_arm_elevation_deg"].tolist(),
+                rows["upper_arm_azimuth_deg"].tolist(),
+                rows["heading_confidence"].tolist(),
+                *rows["nominal_shoulder"].T.tolist(),
                 *rows["wrist"].T.tolist(),
             ]
-        converged: list[int] | NDArray[np.int8] = (
-            rows["heading_converged"].astype(np.int8).tolist()
-        )
+        converged: list[int] | NDArray[np.int8] = rows["heading_converged"].astype(np.int8).tolist()
     else:
         parts = [
-            t[None], rows["elbow"].T, rows["shoulder"].T, rows["elbow_angle_deg"][None],
-            rows["heading_offset_deg"][None], rows["shoulder_displacement_m"][None],
+            t[None],
+            rows["elbow"].T,
+            rows["shoulder"].T,
+            rows["elbow_angle_deg"][None],
+            rows["heading_offset_deg"][None],
+            rows["shoulder_displacement_m"][None],
         ]
         if display:
             parts += [
-                rows["upper_arm_elevation_deg"][None], rows["upper_arm_azimuth_deg"][None],
-                rows["heading_confidence"][None], rows["nominal_shoulder"].T, rows["wrist"].T,
+                rows["upper_arm_elevation_deg"][None],
+                rows["upper_arm_azimuth_deg"][None],
+                rows["heading_confidence"][None],
+                rows["nominal_shoulder"].T,
+                rows["wrist"].T,
             ]
         values = list(_rows_of(parts))
         # astype keeps strides
@@ -172,19 +212,20 @@ def join(blocks: Sequence[Block]) -> Block:
     first = blocks[0]
     values: list[Column]
     if all(isinstance(v, list) for b in blocks for v in b.values):
-        values = [
-            [x for b in blocks for x in b.values[j]]
-            for j in range(len(first.names))
-        ]
+        values = [[x for b in blocks for x in b.values[j]] for j in range(len(first.names))]
     else:
-        values = list(np.concatenate(
-            [np.asarray(b.values, dtype=np.float64) for b in blocks], axis=1,
-        ))
+        values = list(
+            np.concatenate(
+                [np.asarray(b.values, dtype=np.float64) for b in blocks],
+                axis=1,
+            )
+        )
     convs = [b.converged for b in blocks if b.converged is not None]
     converged: list[int] | NDArray[np.int8] | None = None
     if convs:
         converged = (
-            [c for part in convs for c in part] if all(isinstance(c, list) for c in convs)
+            [c for part in convs for c in part]
+            if all(isinstance(c, list) for c in convs)
             else np.concatenate([np.asarray(c, dtype=np.int8) for c in convs])
         )
     return Block(first.names, values, [s for b in blocks for s in b.state], converged)

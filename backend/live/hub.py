@@ -98,8 +98,13 @@ class Hub:
                 overlay = True
         return therapist, overlay
 
-    def _send(self, device: str, session_id: int | None, msg: dict[str, Any],
-              overlay_msg: dict[str, Any] | None) -> None:
+    def _send(
+        self,
+        device: str,
+        session_id: int | None,
+        msg: dict[str, Any],
+        overlay_msg: dict[str, Any] | None,
+    ) -> None:
         text = otext = None
         for c in list(self.clients):
             if not c.wants(device, session_id):
@@ -116,12 +121,14 @@ class Hub:
         (rows pending under the rate cap follow at their time)."""
         self._send(device, session_id, msg, msg)
 
-    def status(self, device: str, session_id: int | None, msg: dict[str, Any],
-               overlay_msg: dict[str, Any]) -> None:
+    def status(
+        self, device: str, session_id: int | None, msg: dict[str, Any], overlay_msg: dict[str, Any]
+    ) -> None:
         self._send(device, session_id, msg, overlay_msg)
 
-    def rows(self, device: str, session_id: int | None, display: Block | None,
-             overlay: Block | None) -> None:
+    def rows(
+        self, device: str, session_id: int | None, display: Block | None, overlay: Block | None
+    ) -> None:
         p = self._pending.get(device)
         if p is None:
             p = self._pending[device] = _Pending(session_id)

@@ -95,8 +95,14 @@ class LiveManager:
             config = make_config(
                 listen=None if s.zenoh_connect else s.zenoh_listen, connect=s.zenoh_connect
             )
-            zio = ZenohIO(config, self.prefix, asyncio.get_running_loop(), self._on_batch,
-                          self._on_token, MAX_PAYLOAD_BYTES)
+            zio = ZenohIO(
+                config,
+                self.prefix,
+                asyncio.get_running_loop(),
+                self._on_batch,
+                self._on_token,
+                MAX_PAYLOAD_BYTES,
+            )
             try:
                 zio.open()
             except Exception as exc:
@@ -106,12 +112,17 @@ class LiveManager:
                 log.error("Zenoh session not opened, no live data: %s", exc)
             else:
                 self.zio = zio
-                log.info("Zenoh: %s %s, keys %s", "connected to" if s.zenoh_connect else
-                         "listening on", s.zenoh_connect or s.zenoh_listen, self.prefix)
+                log.info(
+                    "Zenoh: %s %s, keys %s",
+                    "connected to" if s.zenoh_connect else "listening on",
+                    s.zenoh_connect or s.zenoh_listen,
+                    self.prefix,
+                )
         self._tasks.append(asyncio.create_task(self._ticker(), name="live-ticker"))
         if self._interrupted:
-            self._tasks.append(asyncio.create_task(self._recover(self._interrupted),
-                                                   name="live-recover"))
+            self._tasks.append(
+                asyncio.create_task(self._recover(self._interrupted), name="live-recover")
+            )
         # What start-up allocated (modules, app, engine: ~200k objects) lives as long as the
         # service: frozen, it is out of the collector's full passes, each of which stopped
         # the live loop for 50-130 ms.
@@ -173,9 +184,17 @@ class LiveManager:
             if st is None:
                 return None
             w = DeviceWorker(
-                name, st, scheduler=self.scheduler, prefix=self.prefix, zio=self.zio,
-                hub=self.hub, db=self.db, max_items=self.settings.ingest_queue_size,
-                max_bytes=DEVICE_QUEUE_BYTES, on_change=self.changed, view=self._rows_view,
+                name,
+                st,
+                scheduler=self.scheduler,
+                prefix=self.prefix,
+                zio=self.zio,
+                hub=self.hub,
+                db=self.db,
+                max_items=self.settings.ingest_queue_size,
+                max_bytes=DEVICE_QUEUE_BYTES,
+                on_change=self.changed,
+                view=self._rows_view,
             )
             self.workers[name] = w
             st.last_seen = time.time()
@@ -266,8 +285,14 @@ class LiveManager:
             pipe = self._idle_status
             ingest = {**st.ingest(), "queued": 0}
         msg = feed.status_message(
-            name, online=st.online, session_id=sid, patient=patient, pipeline=pipe,
-            rates_hz=st.rates_hz, ingest=ingest, tolerance_m=params.tolerance_m,
+            name,
+            online=st.online,
+            session_id=sid,
+            patient=patient,
+            pipeline=pipe,
+            rates_hz=st.rates_hz,
+            ingest=ingest,
+            tolerance_m=params.tolerance_m,
             max_outside_fraction=params.max_outside_fraction,
         )
         return msg, feed.overlay_status(msg), sid
@@ -348,9 +373,12 @@ class LiveManager:
             session_files.close(None)
             raise
         if self.viz is not None:
-            self.viz.configure(session.device, tolerance_m=params.tolerance_m,
-                               cuff_to_elbow_m=params.cuff_to_elbow_m,
-                               imu_to_elbow_m=params.imu_to_elbow_m)
+            self.viz.configure(
+                session.device,
+                tolerance_m=params.tolerance_m,
+                cuff_to_elbow_m=params.cuff_to_elbow_m,
+                imu_to_elbow_m=params.imu_to_elbow_m,
+            )
         return session_files.relpath
 
     async def session_stopped(self, session: SessionInfo) -> dict[str, Any] | None:
@@ -367,9 +395,7 @@ class LiveManager:
         if worker is None:
             raise LiveUnavailable("no data from the device since the service started")
         pt = None if point is None else [float(x) for x in point]
-        result: Point | None = await self._run(
-            worker, SetNominal(session.id, pt, from_estimate)
-        )
+        result: Point | None = await self._run(worker, SetNominal(session.id, pt, from_estimate))
         return result
 
     # ------------------------------------------------------------------ exports
@@ -422,14 +448,20 @@ async def recover_session(database: Database, data_dir: Path, session_id: int) -
         for index, c in enumerate(report["cycles"]):
             if index >= (stored or 0):
                 await record_cycle(
-                    db, session_id, start=c["start"], end=c["end"],
-                    outside_fraction=c["outside_fraction"], compensatory=bool(c["compensatory"]),
-                    coverage=c.get("coverage"), peak_displacement_m=c.get("max_displacement_m"),
+                    db,
+                    session_id,
+                    start=c["start"],
+                    end=c["end"],
+                    outside_fraction=c["outside_fraction"],
+                    compensatory=bool(c["compensatory"]),
+                    coverage=c.get("coverage"),
+                    peak_displacement_m=c.get("max_displacement_m"),
                     index=index,
                 )
         if not have_summary:
             await db.execute(
-                update(Session).where(Session.id == session_id)
+                update(Session)
+                .where(Session.id == session_id)
                 .values(summary=session_summary(report))
             )
     log.info("interrupted session %s: outputs complete", session_id)

@@ -210,8 +210,12 @@ class LiveRun:
         self.failures += 1
         self.stats.pipeline_errors += 1
         if self.failures <= 3 or self.failures % 100 == 0:
-            log.exception("device %s: pipeline %s failed (%d); pipeline reset",
-                          self.device, where, self.failures)
+            log.exception(
+                "device %s: pipeline %s failed (%d); pipeline reset",
+                self.device,
+                where,
+                self.failures,
+            )
         self.run.pipeline = Pipeline(self.params)
         self.fed_since_poll = False
 

@@ -258,7 +258,9 @@ class DeviceWorker:
                     log.warning("device %s: estimate not published", dev, exc_info=True)
             if therapist or overlay:
                 self._hub.rows(
-                    dev, sid, block if therapist else None,
+                    dev,
+                    sid,
+                    block if therapist else None,
                     feed.overlay_block(out.rows) if overlay else None,
                 )
             if view is not None:
@@ -268,8 +270,14 @@ class DeviceWorker:
                 live.converged = converged
                 self._on_change(dev)
             point = live.nominal_change(out)
-            if point is not None and sid is not None and live.nominal_source not in (
-                "params", "therapist"  # stored by the sessions API already
+            if (
+                point is not None
+                and sid is not None
+                and live.nominal_source
+                not in (
+                    "params",
+                    "therapist",  # stored by the sessions API already
+                )
             ):
                 self._store_nominal(sid, list(point), live.nominal_source)
         index = live.cycle_index
@@ -294,9 +302,15 @@ class DeviceWorker:
     def _store_cycle(self, sid: int, v: CycleVerdict, index: int) -> None:
         async def op(db: AsyncSession) -> None:
             await record_cycle(
-                db, sid, start=v.start, end=v.end, outside_fraction=v.outside_fraction,
-                compensatory=bool(v.compensatory), coverage=_finite(v.coverage),
-                peak_displacement_m=_finite(v.max_displacement_m), index=index,
+                db,
+                sid,
+                start=v.start,
+                end=v.end,
+                outside_fraction=v.outside_fraction,
+                compensatory=bool(v.compensatory),
+                coverage=_finite(v.coverage),
+                peak_displacement_m=_finite(v.max_displacement_m),
+                index=index,
             )
 
         self._db.submit(f"cycle {index} of session {sid}", op)
@@ -329,8 +343,12 @@ class DeviceWorker:
 
     def _start(self, cmd: StartSession) -> None:
         if self.live.session is not None:  # not after the DB's one-active-session rule
-            log.error("device %s: session %s replaced by %s", self.name,
-                      self.live.session_id, cmd.context.info.id)
+            log.error(
+                "device %s: session %s replaced by %s",
+                self.name,
+                self.live.session_id,
+                cmd.context.info.id,
+            )
             self._stop(self.live.session.info.id)
         self.live = LiveRun(self.name, self.prefix, self.stats, cmd.context, cmd.files)
         self._on_change(self.name)

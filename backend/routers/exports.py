@@ -117,8 +117,9 @@ def _file(path: Path, media_type: str, filename: str, growing: bool) -> Response
     the Content-Length taken when the response started)."""
     if growing:
         disposition = f'attachment; filename="{filename}"'
-        return Response(path.read_bytes(), media_type=media_type,
-                        headers={"Content-Disposition": disposition})
+        return Response(
+            path.read_bytes(), media_type=media_type, headers={"Content-Disposition": disposition}
+        )
     return FileResponse(path, media_type=media_type, filename=filename)
 
 
@@ -178,13 +179,18 @@ async def session_report(
     await db.commit()
     return SessionReportOut(
         session=SessionMeta(
-            id=session.id, status=session.status, device=session.device.name,
+            id=session.id,
+            status=session.status,
+            device=session.device.name,
             therapist=session.therapist.username if session.therapist else None,
-            started_at=session.started_at, stopped_at=session.stopped_at,
-            params=session.params, nominal_shoulder=session.nominal_shoulder,
+            started_at=session.started_at,
+            stopped_at=session.stopped_at,
+            params=session.params,
+            nominal_shoulder=session.nominal_shoulder,
         ),
         patient=PatientMeta(
-            id=session.patient.id, code=session.patient.code,
+            id=session.patient.id,
+            code=session.patient.code,
             affected_side=session.patient.affected_side,
         ),
         provisional=provisional,
@@ -196,8 +202,10 @@ async def session_report(
     "/estimates.csv",
     response_class=FileResponse,
     responses={
-        200: {"description": "One row per robot sample (contract §6)",
-              "content": {"text/csv": {"schema": {"type": "string"}}}},
+        200: {
+            "description": "One row per robot sample (contract §6)",
+            "content": {"text/csv": {"schema": {"type": "string"}}},
+        },
         **_ERRORS,
     },
 )
@@ -210,17 +218,19 @@ async def session_estimates(
         raise HTTPException(status.HTTP_404_NOT_FOUND, "no estimates for this session")
     audit(db, therapist, "export.estimates", f"session:{session.id}")
     await db.commit()
-    return _file(path, "text/csv", f"session-{session.id}-estimates.csv",
-                 session.status == "active")
+    return _file(
+        path, "text/csv", f"session-{session.id}-estimates.csv", session.status == "active"
+    )
 
 
 @router.get(
     "/recording.jsonl.gz",
     response_class=FileResponse,
     responses={
-        200: {"description": "Every raw message of the session (contract §5)",
-              "content": {"application/gzip": {"schema": {"type": "string",
-                                                          "format": "binary"}}}},
+        200: {
+            "description": "Every raw message of the session (contract §5)",
+            "content": {"application/gzip": {"schema": {"type": "string", "format": "binary"}}},
+        },
         **_ERRORS,
     },
 )
@@ -231,5 +241,6 @@ async def session_recording(
     path = await _complete(state, session)
     audit(db, therapist, "export.recording", f"session:{session.id}")
     await db.commit()
-    return _file(path, "application/gzip", f"session-{session.id}.jsonl.gz",
-                 session.status == "active")
+    return _file(
+        path, "application/gzip", f"session-{session.id}.jsonl.gz", session.status == "active"
+    )

@@ -80,8 +80,11 @@ async def live_feed(
     await websocket.accept()
     client = manager.hub.connect(devices=names)
     try:
-        client.send(dumps({"type": "hello",
-                           "devices": names if names is not None else manager.device_names()}))
+        client.send(
+            dumps(
+                {"type": "hello", "devices": names if names is not None else manager.device_names()}
+            )
+        )
         manager.send_initial(client)
         await _pump(websocket, client)
     finally:

@@ -28,22 +28,34 @@ SPECIAL += [999.9995, 1e15, 1e17, 1e300, 5e-324, math.inf, -math.inf, math.nan]
 # name → width, in the order of one matrix whose column views the rows are (as the
 # pipeline's rows are views of one array)
 LAYOUT = [
-    ("t", 1), ("elbow", 3), ("shoulder", 3), ("elbow_angle_deg", 1), ("heading_offset_deg", 1),
-    ("shoulder_displacement_m", 1), ("q_ra", 4), ("heading_std_deg", 1),
-    ("heading_confidence", 1), ("upper_arm_elevation_deg", 1), ("upper_arm_azimuth_deg", 1),
-    ("nominal_shoulder", 3), ("conv_elbow_angle_deg", 1), ("wrist", 3),
+    ("t", 1),
+    ("elbow", 3),
+    ("shoulder", 3),
+    ("elbow_angle_deg", 1),
+    ("heading_offset_deg", 1),
+    ("shoulder_displacement_m", 1),
+    ("q_ra", 4),
+    ("heading_std_deg", 1),
+    ("heading_confidence", 1),
+    ("upper_arm_elevation_deg", 1),
+    ("upper_arm_azimuth_deg", 1),
+    ("nominal_shoulder", 3),
+    ("conv_elbow_angle_deg", 1),
+    ("wrist", 3),
     ("upper_arm_length_m", 1),
 ]
 
 
 def random_rows(rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:
     width = sum(w for _, w in LAYOUT)
-    pool = np.concatenate([
-        rng.normal(size=64) * 10.0 ** rng.integers(-7, 9, size=64),
-        rng.integers(-(10**9), 10**9, size=64) / 1e6,
-        rng.integers(-(2**20), 2**20, size=64) / 2.0**12,
-        SPECIAL,
-    ])
+    pool = np.concatenate(
+        [
+            rng.normal(size=64) * 10.0 ** rng.integers(-7, 9, size=64),
+            rng.integers(-(10**9), 10**9, size=64) / 1e6,
+            rng.integers(-(2**20), 2**20, size=64) / 2.0**12,
+            SPECIAL,
+        ]
+    )
     m = rng.choice(pool, size=(n, width))
     m[:, 0] = np.sort(np.abs(m[:, 0]))
     rows: dict[str, np.ndarray] = {}
@@ -60,20 +72,34 @@ def percent_per_row(rows: dict[str, np.ndarray]) -> tuple[list[str], list[str]]:
     """The files' lines as ``fmt % row``, one column list per cell."""
     el, sh = rows["elbow"], rows["shoulder"]
     est: list[list[Any]] = [
-        rows["t"].tolist(), *(el[:, j].tolist() for j in range(3)),
-        *(sh[:, j].tolist() for j in range(3)), rows["elbow_angle_deg"].tolist(),
-        rows["heading_offset_deg"].tolist(), rows["heading_converged"].astype(np.int64).tolist(),
+        rows["t"].tolist(),
+        *(el[:, j].tolist() for j in range(3)),
+        *(sh[:, j].tolist() for j in range(3)),
+        rows["elbow_angle_deg"].tolist(),
+        rows["heading_offset_deg"].tolist(),
+        rows["heading_converged"].astype(np.int64).tolist(),
         rows["shoulder_displacement_m"].tolist(),
         [analysis.STATE_NAMES[int(s)] for s in rows["state"].tolist()],
     ]
     det: list[list[Any]] = []
-    for name in ("t", "q_ra", "heading_std_deg", "heading_confidence",
-                 "upper_arm_elevation_deg", "upper_arm_azimuth_deg", "nominal_shoulder",
-                 "conv_elbow_angle_deg", "wrist", "upper_arm_length_m"):
+    for name in (
+        "t",
+        "q_ra",
+        "heading_std_deg",
+        "heading_confidence",
+        "upper_arm_elevation_deg",
+        "upper_arm_azimuth_deg",
+        "nominal_shoulder",
+        "conv_elbow_angle_deg",
+        "wrist",
+        "upper_arm_length_m",
+    ):
         a = rows[name]
         det += [a.tolist()] if a.ndim == 1 else [a[:, j].tolist() for j in range(a.shape[1])]
-    return (analysis._format_rows(analysis._EST_FMT, est),
-            analysis._format_rows(analysis._DET_FMT, det))
+    return (
+        analysis._format_rows(analysis._EST_FMT, est),
+        analysis._format_rows(analysis._DET_FMT, det),
+    )
 
 
 @settings(max_examples=60, deadline=None)

@@ -267,8 +267,11 @@ async def test_session_lifecycle(
     # null; omitted keys and other nulls keep the patient's); lists per patient and status.
     r = await client.post(
         "/api/sessions",
-        json={"patient_id": pid, "device": "rig-1",
-              "params": {"warning_after_s": None, "tolerance_m": None}},
+        json={
+            "patient_id": pid,
+            "device": "rig-1",
+            "params": {"warning_after_s": None, "tolerance_m": None},
+        },
         headers=admin,
     )
     assert r.status_code == 201

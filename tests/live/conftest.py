@@ -81,8 +81,7 @@ class Service:
 
     def start(self, device: str, code: str | None = None, **params: Any) -> dict[str, Any]:
         wait_for(lambda: self.device(device), what=f"device {device} registered")
-        body: dict[str, Any] = {"patient_id": self.patient(code or f"p-{device}"),
-                                "device": device}
+        body: dict[str, Any] = {"patient_id": self.patient(code or f"p-{device}"), "device": device}
         if params:
             body["params"] = params
         r = self.api.post("/api/sessions", json=body)
@@ -104,8 +103,9 @@ def login(url: str, settings: Settings) -> tuple[httpx.Client, str]:
     creds = read_admin_credentials(settings)
     assert creds is not None
     client = httpx.Client(base_url=url, timeout=60.0)
-    r = client.post("/api/auth/login", json={"username": creds.username,
-                                             "password": creds.password})
+    r = client.post(
+        "/api/auth/login", json={"username": creds.username, "password": creds.password}
+    )
     assert r.status_code == 200, r.text
     token: str = r.json()["access_token"]
     client.cookies.clear()
@@ -123,8 +123,11 @@ class _Running:
 def run_service(settings: Settings) -> _Running:
     app = create_app(settings)
     app.state.live_required = True
-    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=settings.port,
-                                           log_level="warning", ws="websockets-sansio"))
+    server = uvicorn.Server(
+        uvicorn.Config(
+            app, host="127.0.0.1", port=settings.port, log_level="warning", ws="websockets-sansio"
+        )
+    )
     thread = threading.Thread(target=server.run, name="service", daemon=True)
     thread.start()
     wait_for(lambda: server.started or not thread.is_alive(), what="service start")
@@ -142,10 +145,14 @@ def stop_service(running: _Running) -> None:
 def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
     """One service per test module (SQLite); tests use their own device names."""
     data = tmp_path_factory.mktemp("live")
-    yield from _service(Settings(
-        data_dir=data, port=free_port(), zenoh_listen=f"tcp/127.0.0.1:{free_port()}",
-        cookie_secure=False,
-    ))
+    yield from _service(
+        Settings(
+            data_dir=data,
+            port=free_port(),
+            zenoh_listen=f"tcp/127.0.0.1:{free_port()}",
+            cookie_secure=False,
+        )
+    )
 
 
 def _service(settings: Settings) -> Iterator[Service]:

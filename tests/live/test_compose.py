@@ -37,8 +37,10 @@ def test_services_and_health_checks() -> None:
     for name, svc in services.items():
         assert svc["healthcheck"]["test"], name
     deps = services["rehab"]["depends_on"]
-    assert deps == {"zenoh": {"condition": "service_healthy"},
-                    "postgres": {"condition": "service_healthy"}}
+    assert deps == {
+        "zenoh": {"condition": "service_healthy"},
+        "postgres": {"condition": "service_healthy"},
+    }
     assert (REPO / "Dockerfile").is_file() and services["rehab"]["build"] == "."
 
 
@@ -52,8 +54,9 @@ def test_the_service_is_a_client_of_the_router_and_uses_postgres() -> None:
     fields = {f"REHAB_{name.upper()}" for name in Settings.model_fields}
     assert set(env) <= fields, set(env) - fields
     settings = cli_live.settings_from_args(args)
-    settings = Settings(**{**{k[6:].lower(): v for k, v in env.items()},
-                           **settings.model_dump(exclude_unset=True)})
+    settings = Settings(
+        **{**{k[6:].lower(): v for k, v in env.items()}, **settings.model_dump(exclude_unset=True)}
+    )
 
     # Zenoh: a client of the router service, on the port the router listens on
     assert args.zenoh_connect and args.zenoh_listen is None
@@ -72,7 +75,11 @@ def test_the_service_is_a_client_of_the_router_and_uses_postgres() -> None:
     pg = services["postgres"]["environment"]
     assert url.drivername == "postgresql+psycopg"
     assert (url.host, url.username, url.password, url.database) == (
-        "postgres", pg["POSTGRES_USER"], pg["POSTGRES_PASSWORD"], pg["POSTGRES_DB"])
+        "postgres",
+        pg["POSTGRES_USER"],
+        pg["POSTGRES_PASSWORD"],
+        pg["POSTGRES_DB"],
+    )
     assert url.port == 5432
     pg_check = " ".join(services["postgres"]["healthcheck"]["test"])
     assert f"-U {pg['POSTGRES_USER']}" in pg_check and f"-d {pg['POSTGRES_DB']}" in pg_check

@@ -34,9 +34,22 @@ class ServiceProcess:
         self.endpoint = f"tcp/127.0.0.1:{self.zport}"
         self.url = f"http://127.0.0.1:{self.port}"
         self.args = [
-            sys.executable, "-m", "backend.cli", "serve", "--host", "127.0.0.1",
-            "--port", str(self.port), "--zenoh-listen", self.endpoint,
-            "--data-dir", str(data_dir), "--database-url", db_url, "--log-level", "warning",
+            sys.executable,
+            "-m",
+            "backend.cli",
+            "serve",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(self.port),
+            "--zenoh-listen",
+            self.endpoint,
+            "--data-dir",
+            str(data_dir),
+            "--database-url",
+            db_url,
+            "--log-level",
+            "warning",
         ]
         self.settings = Settings(data_dir=data_dir, database_url=db_url)
         self.proc: subprocess.Popen[bytes] | None = None
@@ -81,15 +94,19 @@ def test_kill_9_mid_session(tmp_path: Path, any_db_url: str) -> None:
         with Publisher.connect(svc.endpoint) as pub:
             pub.declare(outgoing)
             assert pub.wait_for_subscribers(10.0)
-            wait_for(lambda: api.get(f"/api/devices/{DEVICE}").status_code == 200,
-                     what="device registered")
+            wait_for(
+                lambda: api.get(f"/api/devices/{DEVICE}").status_code == 200,
+                what="device registered",
+            )
             pid = api.post("/api/patients", json={"code": "crash", "affected_side": "right"})
-            r = api.post("/api/sessions", json={"patient_id": pid.json()["id"],
-                                                "device": DEVICE})
+            r = api.post("/api/sessions", json={"patient_id": pid.json()["id"], "device": DEVICE})
             assert r.status_code == 201, r.text
             session: dict[str, Any] = r.json()
-            player = threading.Thread(target=play, args=(pub, outgoing, 1.0), kwargs={
-                "stop": stop, "on_sent": lambda m, t: sent.append((t, m))})
+            player = threading.Thread(
+                target=play,
+                args=(pub, outgoing, 1.0),
+                kwargs={"stop": stop, "on_sent": lambda m, t: sent.append((t, m))},
+            )
             player.start()
             time.sleep(8.0)
             svc.kill()
@@ -122,8 +139,10 @@ def test_kill_9_mid_session(tmp_path: Path, any_db_url: str) -> None:
         assert csv == CSV_HEADER + "\n" + "".join(x + "\n" for x in run.est_lines)
         assert (stored.parent / str(sid) / "report.json").read_text() == dump_report(want)
         assert want["summary"]["rows"] > 100
-        wait_for(lambda: api.get(f"/api/sessions/{sid}").json()["summary"] is not None,
-                 what="summary stored after recovery")
+        wait_for(
+            lambda: api.get(f"/api/sessions/{sid}").json()["summary"] is not None,
+            what="summary stored after recovery",
+        )
         api.close()
     finally:
         stop.set()
@@ -143,15 +162,25 @@ def test_shutdown_finishes_running_sessions(tmp_path: Path) -> None:
         with Publisher.connect(svc.endpoint) as pub:
             pub.declare(outgoing)
             assert pub.wait_for_subscribers(10.0)
-            wait_for(lambda: api.get(f"/api/devices/{DEVICE}").status_code == 200,
-                     what="device registered")
+            wait_for(
+                lambda: api.get(f"/api/devices/{DEVICE}").status_code == 200,
+                what="device registered",
+            )
             pid = api.post("/api/patients", json={"code": "term", "affected_side": "left"})
-            started = api.post("/api/sessions", json={"patient_id": pid.json()["id"],
-                                                      "device": DEVICE}).json()
+            started = api.post(
+                "/api/sessions", json={"patient_id": pid.json()["id"], "device": DEVICE}
+            ).json()
             sid = started["id"]
             play(pub, outgoing, 0.0)
-            wait_for(lambda: (api.get(f"/api/devices/{DEVICE}").json()["stats"] or {})
-                     .get("ingest", {}).get("messages", 0) >= len(outgoing), what="received")
+            wait_for(
+                lambda: (
+                    (api.get(f"/api/devices/{DEVICE}").json()["stats"] or {})
+                    .get("ingest", {})
+                    .get("messages", 0)
+                    >= len(outgoing)
+                ),
+                what="received",
+            )
             api.close()
             svc.stop()
         assert svc.proc is not None and svc.proc.returncode is not None
@@ -164,8 +193,11 @@ def test_shutdown_finishes_running_sessions(tmp_path: Path) -> None:
         api, _ = login(svc.url, svc.settings)
         session = api.get(f"/api/sessions/{sid}").json()
         assert session["status"] == "interrupted"
-        assert session["summary"]["rows"] == want["summary"]["rows"] == len(
-            [k for k, _ in sim.messages if k.endswith("/robot")])
+        assert (
+            session["summary"]["rows"]
+            == want["summary"]["rows"]
+            == len([k for k, _ in sim.messages if k.endswith("/robot")])
+        )
         api.close()
     finally:
         svc.stop()

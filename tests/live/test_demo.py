@@ -15,7 +15,10 @@ def test_demo_runs_and_stops(tmp_path: Path) -> None:
     data = tmp_path / "demo"
     done = subprocess.run(
         [sys.executable, "-m", "backend.cli", "demo", "--duration", "6", "--data-dir", str(data)],
-        cwd=REPO, capture_output=True, text=True, timeout=120,
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     assert done.returncode == 0, done.stderr
     out = done.stdout

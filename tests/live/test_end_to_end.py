@@ -28,8 +28,13 @@ def analysis(path: Path, params: dict[str, Any]) -> tuple[str, dict[str, Any]]:
     return CSV_HEADER + "\n" + "".join(x + "\n" for x in run.est_lines), rep
 
 
-def stream(service: Service, device: str, messages: list[tuple[str, Any]], speed: float,
-           session: bool = True) -> dict[str, Any] | None:
+def stream(
+    service: Service,
+    device: str,
+    messages: list[tuple[str, Any]],
+    speed: float,
+    session: bool = True,
+) -> dict[str, Any] | None:
     """Announce the device, start a session on it, play, wait until all is received."""
     outgoing = prepare(messages)
     with service.publisher() as pub:
@@ -37,8 +42,11 @@ def stream(service: Service, device: str, messages: list[tuple[str, Any]], speed
         assert pub.wait_for_subscribers(10.0)
         started = service.start(device) if session else None
         play(pub, outgoing, speed)
-        wait_for(lambda: service.received(device) >= len(outgoing), timeout=60,
-                 what=f"{device}: {len(outgoing)} messages received")
+        wait_for(
+            lambda: service.received(device) >= len(outgoing),
+            timeout=60,
+            what=f"{device}: {len(outgoing)} messages received",
+        )
     return started
 
 
@@ -104,8 +112,7 @@ def test_live_session_equals_offline_analysis(service: Service, tmp_path: Path) 
 RANGES = ("elbow_flexion_deg", "upper_arm_elevation_deg", "upper_arm_azimuth_deg")
 
 
-def history_without_reports(service: Service, stopped: dict[str, Any],
-                            rep: dict[str, Any]) -> None:
+def history_without_reports(service: Service, stopped: dict[str, Any], rep: dict[str, Any]) -> None:
     """A patient's history reads the sessions list: its summaries carry the range of motion
     (from the live run, or from the stored report for sessions stored before), and reading
     it is no export."""
@@ -124,7 +131,8 @@ def history_without_reports(service: Service, stopped: dict[str, Any],
 
     def audited() -> list[dict[str, Any]]:
         entries: list[dict[str, Any]] = service.api.get(
-            "/api/audit", params={"object": f"session:{sid}"}).json()
+            "/api/audit", params={"object": f"session:{sid}"}
+        ).json()
         return entries
 
     audit_before = audited()
@@ -160,8 +168,10 @@ def test_publish_speed_does_not_change_results(service: Service) -> None:
         except BaseException as exc:
             errors.append(exc)
 
-    threads = [threading.Thread(target=one, args=("speed01", 1.0)),
-               threading.Thread(target=one, args=("speed20", 20.0))]
+    threads = [
+        threading.Thread(target=one, args=("speed01", 1.0)),
+        threading.Thread(target=one, args=("speed20", 20.0)),
+    ]
     for t in threads:
         t.start()
     for t in threads:

@@ -25,8 +25,11 @@ def _device_key(key: str) -> str | None:
 
 
 def robot(t: list[float], seq: int | None = None) -> bytes:
-    payload: dict[str, Any] = {"t": t, "wrist": [[0.3, 0.4, 0.1]] * len(t),
-                               "proximal": [[0.3, 0.2, 0.1]] * len(t)}
+    payload: dict[str, Any] = {
+        "t": t,
+        "wrist": [[0.3, 0.4, 0.1]] * len(t),
+        "proximal": [[0.3, 0.2, 0.1]] * len(t),
+    }
     if seq is not None:
         payload["seq"] = seq
     return wire.dumps(payload)
@@ -99,8 +102,9 @@ def test_hostile_input_is_rejected_and_counted(service: Service) -> None:
     good_rep = service.api.get(f"/api/sessions/{good['id']}/report").json()["report"]
     params = PipelineParams.from_json(good["params"])
     original = service.data_dir / "good-original.jsonl"
-    original.write_text("".join(json.dumps({"key": k, "payload": p}) + "\n"
-                                for k, p in sim.messages))
+    original.write_text(
+        "".join(json.dumps({"key": k, "payload": p}) + "\n" for k, p in sim.messages)
+    )
     run, want = analyze(original, params)
     assert good_csv == CSV_HEADER + "\n" + "".join(x + "\n" for x in run.est_lines)
     assert good_rep["summary"] == want["summary"]
@@ -115,8 +119,14 @@ def test_hostile_input_is_rejected_and_counted(service: Service) -> None:
     assert ingest["rejected"]["too_large"] == 1
     # invalid JSON is recorded as a JSON string (so it cannot forge a line) and decoded
     # from there, like `rehab analyze` decodes it: counted as not_object
-    for reason in ("not_object", "bad_shape", "length_mismatch", "bad_type", "missing_field",
-                   "unknown_event"):
+    for reason in (
+        "not_object",
+        "bad_shape",
+        "length_mismatch",
+        "bad_type",
+        "missing_field",
+        "unknown_event",
+    ):
         assert ingest["rejected"].get(reason, 0) >= 1, (reason, ingest["rejected"])
     bad_rep = service.api.get(f"/api/sessions/{bad['id']}/report").json()["report"]
     rejected = bad_rep["data_quality"]["rejected"]
@@ -136,4 +146,3 @@ def test_hostile_input_is_rejected_and_counted(service: Service) -> None:
     assert service.manager.ingest.counters["unknown_key"] >= 4
     devices = {d["name"] for d in service.api.get("/api/devices").json()}
     assert not any(len(d) > 64 for d in devices)
-

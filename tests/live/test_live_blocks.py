@@ -23,10 +23,17 @@ def random_rows(rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:
     pool = np.concatenate([rng.normal(size=64) * 10.0 ** rng.integers(-8, 8, size=64), SPECIAL])
     m = rng.choice(pool, size=(n, 19))
     return {
-        "t": m[:, 0], "elbow": m[:, 1:4], "shoulder": m[:, 4:7], "elbow_angle_deg": m[:, 7],
-        "heading_offset_deg": m[:, 8], "shoulder_displacement_m": m[:, 9],
-        "upper_arm_elevation_deg": m[:, 10], "upper_arm_azimuth_deg": m[:, 11],
-        "heading_confidence": m[:, 12], "nominal_shoulder": m[:, 13:16], "wrist": m[:, 16:19],
+        "t": m[:, 0],
+        "elbow": m[:, 1:4],
+        "shoulder": m[:, 4:7],
+        "elbow_angle_deg": m[:, 7],
+        "heading_offset_deg": m[:, 8],
+        "shoulder_displacement_m": m[:, 9],
+        "upper_arm_elevation_deg": m[:, 10],
+        "upper_arm_azimuth_deg": m[:, 11],
+        "heading_confidence": m[:, 12],
+        "nominal_shoulder": m[:, 13:16],
+        "wrist": m[:, 16:19],
         "heading_converged": rng.random(n) > 0.5,
         "state": rng.integers(-1, 3, size=n).astype(np.int8),
     }
@@ -72,8 +79,7 @@ def test_list_and_array_blocks_give_the_same_text(seed: int) -> None:
 def test_block_columns_are_the_contract_then_the_dashboard() -> None:
     rows = random_rows(np.random.default_rng(1), 2)
     cols = feed.estimate_block(rows, display=True).columns()
-    assert list(cols) == [*feed.CONTRACT_FLOATS, *feed.DISPLAY_EXTRA, "heading_converged",
-                          "state"]
+    assert list(cols) == [*feed.CONTRACT_FLOATS, *feed.DISPLAY_EXTRA, "heading_converged", "state"]
     assert cols["heading_converged"] == rows["heading_converged"].astype(int).tolist()
 
 

@@ -19,8 +19,11 @@ def test_nominal_shoulder_set_and_reset(service: Service) -> None:
     device = "nom01"
     sim = simulate(SimConfig(seed=41, duration_s=60.0, device=device))
     outgoing = prepare(sim.messages)
-    thirds = [outgoing[: len(outgoing) // 3], outgoing[len(outgoing) // 3: 2 * len(outgoing) // 3],
-              outgoing[2 * len(outgoing) // 3:]]
+    thirds = [
+        outgoing[: len(outgoing) // 3],
+        outgoing[len(outgoing) // 3 : 2 * len(outgoing) // 3],
+        outgoing[2 * len(outgoing) // 3 :],
+    ]
     with service.publisher() as pub:
         pub.declare(outgoing)
         assert pub.wait_for_subscribers(10.0)
@@ -35,8 +38,11 @@ def test_nominal_shoulder_set_and_reset(service: Service) -> None:
         for i, part in enumerate(thirds):
             play(pub, part, speed=20.0)
             sent += len(part)
-            wait_for(lambda: service.received(device) >= sent, timeout=60,  # noqa: B023
-                     what="data")
+            wait_for(
+                lambda: service.received(device) >= sent,  # noqa: B023 (called right here)
+                timeout=60,
+                what="data",
+            )
             if i == 0:
                 r = service.api.put(url, json={"source": "estimate"})
                 assert r.status_code == 200, r.text
@@ -46,8 +52,16 @@ def test_nominal_shoulder_set_and_reset(service: Service) -> None:
                 r = service.api.delete(url)
                 assert r.status_code == 200 and r.json()["nominal_shoulder"] is None
         # the automatic nominal after the reset is stored once the pipeline adopts it
-        wait_for(lambda: (service.api.get(f"/api/sessions/{sid}").json()["nominal_shoulder"]
-                          or {}).get("source") == "auto", timeout=20, what="auto nominal stored")
+        wait_for(
+            lambda: (
+                (service.api.get(f"/api/sessions/{sid}").json()["nominal_shoulder"] or {}).get(
+                    "source"
+                )
+                == "auto"
+            ),
+            timeout=20,
+            what="auto nominal stored",
+        )
         stopped = service.stop(sid)
 
     stored = service.data_dir / stopped["recording_path"]

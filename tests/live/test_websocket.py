@@ -18,8 +18,17 @@ from simulator.publish import play, prepare
 from tests.live.conftest import Service, wait_for
 
 CONTRACT_COLUMNS = (
-    "t", "elbow_x", "elbow_y", "elbow_z", "shoulder_x", "shoulder_y", "shoulder_z",
-    "elbow_angle_deg", "heading_offset_deg", "heading_converged", "shoulder_displacement_m",
+    "t",
+    "elbow_x",
+    "elbow_y",
+    "elbow_z",
+    "shoulder_x",
+    "shoulder_y",
+    "shoulder_z",
+    "elbow_angle_deg",
+    "heading_offset_deg",
+    "heading_converged",
+    "shoulder_displacement_m",
     "state",
 )
 
@@ -44,8 +53,11 @@ class Listener:
         self.closed = (code, self.ws.close_reason or "") if code is not None else (1006, "")
 
     def of(self, kind: str, device: str | None = None) -> list[dict[str, Any]]:
-        return [m for _, m in self.messages
-                if m["type"] == kind and (device is None or m.get("device") == device)]
+        return [
+            m
+            for _, m in self.messages
+            if m["type"] == kind and (device is None or m.get("device") == device)
+        ]
 
     def close(self) -> None:
         self.ws.close()
@@ -57,8 +69,12 @@ def ws_url(service: Service, path: str) -> str:
 
 
 def therapist(service: Service, query: str = "") -> Listener:
-    return Listener(connect(ws_url(service, "/api/ws/live" + query),
-                            additional_headers={"Authorization": f"Bearer {service.token}"}))
+    return Listener(
+        connect(
+            ws_url(service, "/api/ws/live" + query),
+            additional_headers={"Authorization": f"Bearer {service.token}"},
+        )
+    )
 
 
 def refused(service: Service, path: str, headers: dict[str, str] | None = None) -> None:
@@ -75,10 +91,11 @@ def refused(service: Service, path: str, headers: dict[str, str] | None = None) 
 
 def test_live_and_overlay_feeds(service: Service) -> None:
     main, other = "ws01", "ws02"
-    sims = {d: simulate(SimConfig(seed=s, duration_s=50.0, device=d))
-            for d, s in ((main, 3), (other, 4))}
-    outgoing = sorted((m for s in sims.values() for m in prepare(s.messages)),
-                      key=lambda m: m.at)
+    sims = {
+        d: simulate(SimConfig(seed=s, duration_s=50.0, device=d))
+        for d, s in ((main, 3), (other, 4))
+    }
+    outgoing = sorted((m for s in sims.values() for m in prepare(s.messages)), key=lambda m: m.at)
     with service.publisher() as pub:
         pub.declare(outgoing)
         assert pub.wait_for_subscribers(10.0)
@@ -124,9 +141,18 @@ def test_live_and_overlay_feeds(service: Service) -> None:
     assert {"hello", "status", "estimate", "state", "cycle"} <= kinds
 
     status = everything.of("status", main)[-2]
-    for key in ("online", "session_id", "patient", "heading_converged", "convergence_progress",
-                "heading_confidence", "heading_std_deg", "upper_arm_length_m", "quality",
-                "rates_hz"):
+    for key in (
+        "online",
+        "session_id",
+        "patient",
+        "heading_converged",
+        "convergence_progress",
+        "heading_confidence",
+        "heading_std_deg",
+        "upper_arm_length_m",
+        "quality",
+        "rates_hz",
+    ):
         assert key in status, key
     assert status["session_id"] == sid and status["patient"] == f"p-{main}"
     assert status["online"] is True and status["heading_converged"] is True
@@ -134,8 +160,9 @@ def test_live_and_overlay_feeds(service: Service) -> None:
     assert set(status["rates_hz"]) == {"imu", "robot"}
 
     # estimates: every column, every row exactly once, at most 30 messages per second
-    est = [(t, m) for t, m in everything.messages if m["type"] == "estimate"
-           and m["device"] == main]
+    est = [
+        (t, m) for t, m in everything.messages if m["type"] == "estimate" and m["device"] == main
+    ]
     assert set(est[0][1]["rows"]) == set(CONTRACT_COLUMNS) | set(DISPLAY_EXTRA)
     t_rows = [t for _, m in est for t in m["rows"]["t"]]
     csv = service.api.get(f"/api/sessions/{sid}/estimates.csv").text.splitlines()[1:]
@@ -150,16 +177,29 @@ def test_live_and_overlay_feeds(service: Service) -> None:
     cycles = everything.of("cycle", main)
     assert [c["index"] for c in cycles] == list(range(len(cycles)))
     assert len(cycles) == stopped["summary"]["cycles"]
-    assert set(cycles[0]) == {"type", "device", "start", "end", "outside_fraction",
-                              "compensatory", "index"}
+    assert set(cycles[0]) == {
+        "type",
+        "device",
+        "start",
+        "end",
+        "outside_fraction",
+        "compensatory",
+        "index",
+    }
 
     # overlay: its own device and session only, and only these fields
     assert overlay.messages
     assert {m["device"] for _, m in overlay.messages} == {main}
     for _, m in overlay.messages:
         if m["type"] == "status":
-            assert set(m) == {"type", "device", "heading_converged", "convergence_progress",
-                              "online", "tolerance_m"}
+            assert set(m) == {
+                "type",
+                "device",
+                "heading_converged",
+                "convergence_progress",
+                "online",
+                "tolerance_m",
+            }
             assert m["tolerance_m"] == 0.12  # the overlay draws its circle from it
         elif m["type"] == "estimate":
             assert set(m["rows"]) == set(OVERLAY_COLUMNS)

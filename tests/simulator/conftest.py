@@ -39,9 +39,12 @@ def decode_all(sim: Simulation) -> Streams:
         else:  # pragma: no cover - the simulator publishes no camera
             raise AssertionError(type(msg))
     return Streams(
-        np.concatenate([m.t for m in imu]), np.concatenate([m.gyr for m in imu]),
-        np.concatenate([m.acc for m in imu]), np.concatenate([m.t for m in rob]),
-        np.concatenate([m.wrist for m in rob]), np.concatenate([m.proximal for m in rob]),
+        np.concatenate([m.t for m in imu]),
+        np.concatenate([m.gyr for m in imu]),
+        np.concatenate([m.acc for m in imu]),
+        np.concatenate([m.t for m in rob]),
+        np.concatenate([m.wrist for m in rob]),
+        np.concatenate([m.proximal for m in rob]),
         events,
     )
 
@@ -66,8 +69,9 @@ def ideal_streams(ideal_sim: Simulation) -> Streams:
     return decode_all(ideal_sim)
 
 
-def elbow_from_cuffs(wrist: np.ndarray, proximal: np.ndarray, cuff_to_elbow: float = 0.06
-                     ) -> np.ndarray:
+def elbow_from_cuffs(
+    wrist: np.ndarray, proximal: np.ndarray, cuff_to_elbow: float = 0.06
+) -> np.ndarray:
     """Contract eq. 13."""
     d = proximal - wrist
     return np.asarray(proximal + cuff_to_elbow * d / np.linalg.norm(d, axis=1, keepdims=True))

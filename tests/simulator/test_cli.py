@@ -14,12 +14,28 @@ from simulator.subject import Subject
 from simulator.truth import Truth, load_subject
 
 
-def test_writes_recording_truth_and_subject(tmp_path: Path,
-                                            capsys: pytest.CaptureFixture[str]) -> None:
+def test_writes_recording_truth_and_subject(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / "run"
-    argv = ["simulate", "--seed", "3", "--duration", "30", "--out", str(out),
-            "--imu-rate", "200", "--robot-rate", "50", "--imu-batch", "5", "--device", "d2",
-            "--cycle-events"]
+    argv = [
+        "simulate",
+        "--seed",
+        "3",
+        "--duration",
+        "30",
+        "--out",
+        str(out),
+        "--imu-rate",
+        "200",
+        "--robot-rate",
+        "50",
+        "--imu-batch",
+        "5",
+        "--device",
+        "d2",
+        "--cycle-events",
+    ]
     assert cli.main(argv) == 0
     line = capsys.readouterr().out
     assert line.count("\n") == 1 and "seed 3" in line

@@ -12,21 +12,23 @@ from tests.simulator.test_physics import strapdown
 
 def test_noise_levels_and_rate_scaling() -> None:
     base = decode_all(simulate(SimConfig(seed=4, duration_s=60.0, ideal=True)))
-    noisy = decode_all(simulate(SimConfig(seed=4, duration_s=60.0, ideal=True, gyro_noise=True,
-                                          acc_noise=True)))
+    noisy = decode_all(
+        simulate(SimConfig(seed=4, duration_s=60.0, ideal=True, gyro_noise=True, acc_noise=True))
+    )
     g, a = noisy.gyr - base.gyr, noisy.acc - base.acc
     assert abs(g.std() - 0.005) < 0.0002 and abs(a.std() - 0.03) < 0.001
     assert abs(g.mean()) < 2e-4 and abs(a.mean()) < 1e-3
     # Fixed noise density: 400 Hz has twice the rms of 100 Hz.
     cfg = dict(seed=4, duration_s=20.0, imu_rate_hz=400.0, ideal=True)
-    g400 = (decode_all(simulate(SimConfig(**cfg, gyro_noise=True))).gyr  # type: ignore[arg-type]
-            - decode_all(simulate(SimConfig(**cfg))).gyr)  # type: ignore[arg-type]
+    g400 = (
+        decode_all(simulate(SimConfig(**cfg, gyro_noise=True))).gyr  # type: ignore[arg-type]
+        - decode_all(simulate(SimConfig(**cfg))).gyr
+    )  # type: ignore[arg-type]
     assert abs(g400.std() - 0.010) < 0.0004
 
 
 def test_biases_and_truth_bias() -> None:
-    sim = simulate(SimConfig(seed=4, duration_s=120.0, ideal=True, gyro_bias=True,
-                             acc_bias=True))
+    sim = simulate(SimConfig(seed=4, duration_s=120.0, ideal=True, gyro_bias=True, acc_bias=True))
     base = simulate(SimConfig(seed=4, duration_s=120.0, ideal=True))
     s, b = decode_all(sim), decode_all(base)
     np.testing.assert_allclose(s.gyr - b.gyr, sim.truth.gyro_bias, atol=2e-7)
@@ -35,8 +37,9 @@ def test_biases_and_truth_bias() -> None:
     assert all(0.1 <= abs(x) <= 0.8 for x in sim.subject.gyro_bias_dps)
     walk = np.degrees(np.abs(sim.truth.gyro_bias[-1] - bias0))
     assert 0.0 < walk.max() < 0.1  # slow drift, ~0.002 °/s/√s
-    np.testing.assert_allclose(s.acc - b.acc, np.broadcast_to(sim.subject.acc_bias_m_s2,
-                                                               s.acc.shape), atol=2e-6)
+    np.testing.assert_allclose(
+        s.acc - b.acc, np.broadcast_to(sim.subject.acc_bias_m_s2, s.acc.shape), atol=2e-6
+    )
     assert all(0.05 <= abs(x) <= 0.15 for x in sim.subject.acc_bias_m_s2)
 
 
@@ -53,8 +56,12 @@ def test_heading_drift_of_plain_integration() -> None:
 
 
 def test_some_subjects_drift_fast() -> None:
-    drifts = [simulate(SimConfig(seed=s, duration_s=30.0, imu_rate_hz=20.0,
-                                 robot_rate_hz=10.0)).heading_drift_dps for s in range(1, 11)]
+    drifts = [
+        simulate(
+            SimConfig(seed=s, duration_s=30.0, imu_rate_hz=20.0, robot_rate_hz=10.0)
+        ).heading_drift_dps
+        for s in range(1, 11)
+    ]
     assert max(abs(d) for d in drifts) > 0.5
     assert min(abs(d) for d in drifts) < 0.2
 

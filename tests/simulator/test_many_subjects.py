@@ -27,8 +27,14 @@ def test_verdicts_and_posture_for_many_seeds(seed: int) -> None:
 def test_extreme_arms_stay_non_singular(upper: float, fore: float) -> None:
     base = draw_subject(np.random.default_rng(0))
     center, size = task_placement(upper, fore)
-    subject = replace(base, upper_arm_m=upper, forearm_m=fore, rect_center_m=center,
-                      rect_size_m=size, imu_to_elbow_m=0.19)
+    subject = replace(
+        base,
+        upper_arm_m=upper,
+        forearm_m=fore,
+        rect_center_m=center,
+        rect_size_m=size,
+        imu_to_elbow_m=0.19,
+    )
     sim = simulate(SimConfig(seed=1, subject=subject, imu_rate_hz=20.0, robot_rate_hz=10.0))
     check_verdicts(sim)
     angle = sim.truth.elbow_angle_deg

@@ -75,9 +75,18 @@ def test_shoulder_reference_event(default_sim: Simulation, default_streams: Stre
 
 
 def test_rates_batches_device_and_cycle_events() -> None:
-    cfg = SimConfig(seed=6, duration_s=30.0, imu_rate_hz=250.0, robot_rate_hz=40.0,
-                    imu_batch=10, robot_batch=3, device="bench-7", cycle_events=True,
-                    t0_s=1000.0, ideal=True)
+    cfg = SimConfig(
+        seed=6,
+        duration_s=30.0,
+        imu_rate_hz=250.0,
+        robot_rate_hz=40.0,
+        imu_batch=10,
+        robot_batch=3,
+        device="bench-7",
+        cycle_events=True,
+        t0_s=1000.0,
+        ideal=True,
+    )
     sim = simulate(cfg)
     s = decode_all(sim)
     assert {k.split("/")[1] for k, _ in sim.messages} == {"bench-7"}

@@ -35,8 +35,9 @@ def specific_force_residual(sim: Simulation, streams: Streams) -> tuple[np.ndarr
     return acc_world[1:-1], acc_world[1:-1] - second
 
 
-def test_gyro_integration_reproduces_orientation(ideal_sim: Simulation,
-                                                 ideal_streams: Streams) -> None:
+def test_gyro_integration_reproduces_orientation(
+    ideal_sim: Simulation, ideal_streams: Streams
+) -> None:
     err = orientation_error_deg(ideal_sim, ideal_streams)
     assert ideal_sim.truth.t[-1] >= 480.0
     assert err.max() < 0.1, f"strapdown drifted {err.max():.3f}° over the session"
@@ -58,12 +59,14 @@ def test_rest_reads_gravity_only(ideal_sim: Simulation, ideal_streams: Streams) 
     rest = ideal_sim.truth.phase == 0
     assert rest.sum() == 500
     assert np.abs(ideal_streams.gyr[rest]).max() < 1e-6
-    expected = quat.rotate(quat.conjugate(ideal_sim.truth.q_imu[rest]),
-                           np.array([0.0, 0.0, GRAVITY]))
+    expected = quat.rotate(
+        quat.conjugate(ideal_sim.truth.q_imu[rest]), np.array([0.0, 0.0, GRAVITY])
+    )
     assert np.abs(ideal_streams.acc[rest] - expected).max() < 2e-6
     assert np.ptp(ideal_sim.truth.shoulder[rest], axis=0).max() == 0.0
-    np.testing.assert_array_equal(ideal_sim.truth.shoulder[rest][0],
-                                  ideal_sim.truth.nominal_shoulder)
+    np.testing.assert_array_equal(
+        ideal_sim.truth.shoulder[rest][0], ideal_sim.truth.nominal_shoulder
+    )
 
 
 def test_wobble_keeps_physics_consistent() -> None:
@@ -112,9 +115,11 @@ def test_quaternion_helpers_round_trip() -> None:
     q[q[:, 0] < 0] *= -1
     np.testing.assert_allclose(quat.from_matrix(quat.to_matrix(q)), q, atol=1e-12)
     v = rng.normal(size=(200, 3))
-    np.testing.assert_allclose(quat.rotate(q, v), np.einsum("nij,nj->ni", quat.to_matrix(q), v),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        quat.rotate(q, v), np.einsum("nij,nj->ni", quat.to_matrix(q), v), atol=1e-12
+    )
     r = rng.normal(size=(200, 3))
     axis = r / np.linalg.norm(r, axis=1, keepdims=True)
-    np.testing.assert_allclose(quat.from_rotvec(r),
-                               quat.from_axis_angle(axis, np.linalg.norm(r, axis=1)), atol=1e-12)
+    np.testing.assert_allclose(
+        quat.from_rotvec(r), quat.from_axis_angle(axis, np.linalg.norm(r, axis=1)), atol=1e-12
+    )

@@ -15,8 +15,10 @@ def best_lag(sim: Simulation, streams: Streams) -> tuple[float, float]:
     truth = CubicSpline(sim.truth.t, sim.truth.elbow)
     sel = streams.robot_t > 6.0
     lags = np.arange(0.0, 0.1, 0.001)
-    rms = [np.sqrt(np.mean(np.sum((elbow[sel] - truth(streams.robot_t[sel] - lag)) ** 2, 1)))
-           for lag in lags]
+    rms = [
+        np.sqrt(np.mean(np.sum((elbow[sel] - truth(streams.robot_t[sel] - lag)) ** 2, 1)))
+        for lag in lags
+    ]
     i = int(np.argmin(rms))
     return float(lags[i]), float(rms[i])
 
@@ -39,8 +41,9 @@ def test_latency_is_visible_alone() -> None:
     assert abs(lag - lat) <= 0.001 and rms < 2e-4
 
 
-def test_latency_is_visible_with_all_errors(default_sim: Simulation,
-                                            default_streams: Streams) -> None:
+def test_latency_is_visible_with_all_errors(
+    default_sim: Simulation, default_streams: Streams
+) -> None:
     lag, rms = best_lag(default_sim, default_streams)
     assert abs(lag - default_sim.subject.latency_s) <= 0.003
     assert 0.002 < rms < 0.006  # noise and rope
