@@ -27,7 +27,6 @@ import socket
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -36,6 +35,9 @@ import httpx
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+
+from simulator import SimConfig, simulate  # noqa: E402  (the repository on the path first)
+from simulator.publish import DeviceThread, prepare  # noqa: E402
 
 TARGET_HZ = 20.0
 CALIBRATION_S = 60.0  # simulated seconds played fast
@@ -61,35 +63,12 @@ def free_port() -> int:
         return port
 
 
-class Device(threading.Thread):
+def device(endpoint: str, name: str, seed: int, duration_s: float) -> DeviceThread:
     """One simulated device: the calibration minute fast, then real time, until stopped."""
-
-    def __init__(self, endpoint: str, name: str, seed: int, duration_s: float) -> None:
-        super().__init__(name=f"sim-{name}", daemon=True)
-        from simulator import SimConfig, simulate
-        from simulator.publish import prepare
-
-        sim = simulate(SimConfig(seed=seed, duration_s=duration_s, device=name))
-        self.outgoing = prepare(sim.messages)
-        self.endpoint = endpoint
-        self.stop_event = threading.Event()
-        self.realtime = threading.Event()  # the fast calibration part is over
-        self.error: BaseException | None = None
-
-    def run(self) -> None:
-        from simulator.publish import Publisher, play
-
-        try:
-            with Publisher.connect(self.endpoint) as pub:
-                pub.declare(self.outgoing)
-                pub.wait_for_subscribers(10.0)
-                t0 = self.outgoing[0].at
-                fast = [m for m in self.outgoing if m.at < t0 + CALIBRATION_S]
-                play(pub, fast, FAST, stop=self.stop_event)
-                self.realtime.set()
-                play(pub, self.outgoing[len(fast) :], 1.0, stop=self.stop_event)
-        except BaseException as exc:
-            self.error = exc
+    sim = simulate(SimConfig(seed=seed, duration_s=duration_s, device=name))
+    return DeviceThread(
+        endpoint, prepare(sim.messages), name=name, fast_until_s=CALIBRATION_S, fast=FAST
+    )
 
 
 def start_service(data: Path) -> tuple[subprocess.Popen[bytes], str, str, dict[str, str]]:
@@ -140,7 +119,7 @@ def start_sessions(url: str, creds: dict[str, str], names: list[str]) -> None:
             r.raise_for_status()
 
 
-def measure(url: str, creds: dict[str, str], devices: list[Device], duration: float,
+def measure(url: str, creds: dict[str, str], devices: list[DeviceThread], duration: float,
             chromium: str) -> dict[str, Any]:  # fmt: skip
     names = [d.name.removeprefix("sim-") for d in devices]
     from playwright.sync_api import expect, sync_playwright
@@ -210,7 +189,7 @@ def main() -> int:
     sim_s = CALIBRATION_S + args.duration + 90.0  # calibration, page start-up and margin
     with tempfile.TemporaryDirectory(prefix="rehab-dashboard-") as tmp:
         proc, url, endpoint, creds = start_service(Path(tmp))
-        devices = [Device(endpoint, n, 20 + i, sim_s) for i, n in enumerate(names)]
+        devices = [device(endpoint, n, 20 + i, sim_s) for i, n in enumerate(names)]
         try:
             for d in devices:
                 d.start()

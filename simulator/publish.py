@@ -13,6 +13,7 @@ rather than drop when the network pushes back: a recording arrives complete.
 from __future__ import annotations
 
 import argparse
+import bisect
 import contextlib
 import logging
 import sys
@@ -208,6 +209,69 @@ def publish(
         if not pub.wait_for_subscribers(wait_s):
             log.warning("no subscriber on %s after %.0f s: publishing anyway", endpoint, wait_s)
         return play(pub, outgoing, speed, stop=stop)
+
+
+class DeviceThread(threading.Thread):
+    """A simulated device publishing ``outgoing`` from a background thread, as a real one
+    would: ``head_s`` seconds in real time (so the service knows the device), then, if
+    ``gated``, a wait for :meth:`go` (a session has started), then everything up to
+    ``fast_until_s`` (seconds after the first message) at ``fast`` times real time (the
+    heading calibration, shortened) and the rest in real time until the end or :meth:`stop`.
+
+    An exception in the thread is kept in ``error`` for its owner to report.
+    """
+
+    def __init__(
+        self,
+        endpoint: str,
+        outgoing: Sequence[Outgoing],
+        *,
+        name: str,
+        head_s: float = 0.0,
+        fast_until_s: float = 0.0,
+        fast: float = 1.0,
+        gated: bool = False,
+        prefix: str = keys.DEFAULT_PREFIX,
+    ) -> None:
+        super().__init__(name=f"sim-{name}", daemon=True)
+        self.endpoint, self.outgoing, self.prefix = endpoint, list(outgoing), prefix
+        self.head_s, self.fast_until_s, self.fast = head_s, fast_until_s, fast
+        self._go = threading.Event()
+        if not gated:
+            self._go.set()
+        self.stop_event = threading.Event()
+        self.realtime = threading.Event()  # set once the fast part is over
+        self.error: BaseException | None = None
+        self.sent = 0
+
+    def go(self) -> None:
+        self._go.set()
+
+    def stop(self, timeout_s: float = 10.0) -> None:
+        self.stop_event.set()
+        self._go.set()
+        self.join(timeout_s)
+
+    def run(self) -> None:
+        try:
+            with Publisher.connect(self.endpoint, self.prefix) as pub:
+                pub.declare(self.outgoing)
+                pub.wait_for_subscribers(10.0)
+                if not self.outgoing:
+                    return
+                at = [m.at for m in self.outgoing]  # never decreasing (prepare)
+                n_head = bisect.bisect_left(at, at[0] + self.head_s)
+                n_fast = max(n_head, bisect.bisect_left(at, at[0] + self.fast_until_s))
+                self.sent += play(pub, self.outgoing[:n_head], 1.0, stop=self.stop_event)
+                while not self._go.wait(0.2):
+                    if self.stop_event.is_set():
+                        return
+                fast, rest = self.outgoing[n_head:n_fast], self.outgoing[n_fast:]
+                self.sent += play(pub, fast, self.fast, stop=self.stop_event)
+                self.realtime.set()
+                self.sent += play(pub, rest, 1.0, stop=self.stop_event)
+        except BaseException as exc:  # reported by the owner of the device
+            self.error = exc
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -12,7 +12,6 @@ import os
 import socket
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -21,6 +20,8 @@ from typing import Any
 
 import httpx
 import pytest
+
+from simulator.publish import DeviceThread, prepare
 
 REPO = Path(__file__).resolve().parents[2]
 CHROMIUM = Path(os.environ.get("REHAB_TEST_CHROMIUM", "/usr/bin/chromium"))
@@ -135,13 +136,9 @@ def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
             proc.wait()
 
 
-class SimDevice(threading.Thread):
-    """A simulated device publishing over Zenoh as a real one would.
-
-    It plays ``head_s`` seconds in real time (so the service knows the device), then waits
-    for :meth:`go` (a session has started), plays until ``fast_until_s`` at ``fast`` times
-    real time (the heading calibration, shortened), and the rest in real time.
-    """
+class SimDevice(DeviceThread):
+    """A simulated session of ``layout`` played by a device thread (see
+    :class:`simulator.publish.DeviceThread` for ``head_s``, ``gated`` and the fast part)."""
 
     def __init__(
         self,
@@ -155,24 +152,15 @@ class SimDevice(threading.Thread):
         fast: float = 1.0,
         gated: bool = False,
     ) -> None:
-        super().__init__(name=f"sim-{device}", daemon=True)
         from simulator import SimConfig, simulate
-        from simulator.publish import prepare
 
         duration = sum(d for _, d in layout)
         sim = simulate(SimConfig(seed=seed, duration_s=duration, device=device, layout=layout))
-        self.outgoing = prepare(sim.messages)
-        self.endpoint = endpoint
+        super().__init__(
+            endpoint, prepare(sim.messages), name=device, head_s=head_s,
+            fast_until_s=fast_until_s, fast=fast, gated=gated,
+        )  # fmt: skip
         self.device = device
-        self.head_s = head_s
-        self.fast_until_s = fast_until_s
-        self.fast = fast
-        self._go = threading.Event()
-        if not gated:
-            self._go.set()
-        self.stop_event = threading.Event()
-        self.error: BaseException | None = None
-        self.sent = 0
 
     def wait_known(self, service: Service, timeout_s: float = 30.0) -> None:
         """Block until the service has heard from this device (its REST resource exists)."""
@@ -187,34 +175,6 @@ class SimDevice(threading.Thread):
                 time.sleep(0.1)
         finally:
             api.close()
-
-    def go(self) -> None:
-        self._go.set()
-
-    def stop(self) -> None:
-        self.stop_event.set()
-        self._go.set()
-        self.join(10)
-
-    def run(self) -> None:
-        from simulator.publish import Publisher, play
-
-        try:
-            with Publisher.connect(self.endpoint) as pub:
-                pub.declare(self.outgoing)
-                pub.wait_for_subscribers(10.0)
-                t0 = self.outgoing[0].at
-                head = [m for m in self.outgoing if m.at < t0 + self.head_s]
-                fast = [m for m in self.outgoing[len(head) :] if m.at < t0 + self.fast_until_s]
-                rest = self.outgoing[len(head) + len(fast) :]
-                self.sent += play(pub, head, 1.0, stop=self.stop_event)
-                while not self._go.wait(0.2):
-                    if self.stop_event.is_set():
-                        return
-                self.sent += play(pub, fast, self.fast, stop=self.stop_event)
-                self.sent += play(pub, rest, 1.0, stop=self.stop_event)
-        except BaseException as exc:  # reported by the test that owns the device
-            self.error = exc
 
 
 @dataclass
