@@ -1,4 +1,5 @@
-"""Session exports: the report (JSON), the per-sample estimates (CSV), the raw recording.
+"""Session exports: the report (JSON), the per-sample estimates and details (CSV), the raw
+recording.
 
 Every export is written to the audit log. A session the service did not stop (killed)
 has its outputs regenerated from its recording on first request. A running session
@@ -212,15 +213,38 @@ async def session_report(
 async def session_estimates(
     session_id: int, therapist: CurrentTherapist, state: State, db: DB
 ) -> Response:
+    return await _table(db, state, therapist, session_id, "estimates")
+
+
+@router.get(
+    "/details.csv",
+    response_class=FileResponse,
+    responses={
+        200: {
+            "description": "The same rows' orientation, heading confidence, upper-arm "
+            "elevation and azimuth, nominal shoulder and more (contract §6)",
+            "content": {"text/csv": {"schema": {"type": "string"}}},
+        },
+        **_ERRORS,
+    },
+)
+async def session_details(
+    session_id: int, therapist: CurrentTherapist, state: State, db: DB
+) -> Response:
+    return await _table(db, state, therapist, session_id, "details")
+
+
+async def _table(
+    db: DB, state: State, therapist: CurrentTherapist, session_id: int, name: str
+) -> Response:
+    """One of the session's two CSV files (contract §6), audited as ``export.<name>``."""
     session = await _load(db, session_id)
-    path = files.outputs_dir(await _complete(state, session)) / "estimates.csv"
+    path = files.outputs_dir(await _complete(state, session)) / f"{name}.csv"
     if not path.exists():
-        raise HTTPException(status.HTTP_404_NOT_FOUND, "no estimates for this session")
-    audit(db, therapist, "export.estimates", f"session:{session.id}")
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no {name} for this session")
+    audit(db, therapist, f"export.{name}", f"session:{session.id}")
     await db.commit()
-    return _file(
-        path, "text/csv", f"session-{session.id}-estimates.csv", session.status == "active"
-    )
+    return _file(path, "text/csv", f"session-{session.id}-{name}.csv", session.status == "active")
 
 
 @router.get(

@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 
 from backend import recording
-from backend.analysis import CSV_HEADER, DeviceRun, analyze
+from backend.analysis import CSV_HEADER, DETAILS_HEADER, DeviceRun, analyze
 from backend.live.files import dump_report
 from estimators.params import PipelineParams
 from simulator import SimConfig, simulate
@@ -22,10 +22,12 @@ from simulator.publish import play, prepare
 from tests.live.conftest import Service, wait_for
 
 
-def analysis(path: Path, params: dict[str, Any]) -> tuple[str, dict[str, Any]]:
+def analysis(path: Path, params: dict[str, Any]) -> tuple[str, dict[str, Any], str]:
+    """``rehab analyze``'s estimates.csv, report and details.csv."""
     run: DeviceRun
     run, rep = analyze(path, PipelineParams.from_json(params))
-    return CSV_HEADER + "\n" + "".join(x + "\n" for x in run.est_lines), rep
+    est = CSV_HEADER + "\n" + "".join(x + "\n" for x in run.est_lines)
+    return est, rep, DETAILS_HEADER + "\n" + "".join(x + "\n" for x in run.det_lines)
 
 
 def stream(
@@ -74,6 +76,10 @@ def test_live_session_equals_offline_analysis(service: Service, tmp_path: Path) 
     assert stopped["status"] == "stopped"
     assert stopped["recording_path"] == f"recordings/{sid}.jsonl.gz"
     csv, exported, rec_bytes = exports(service, sid)
+    r = service.api.get(f"/api/sessions/{sid}/details.csv")
+    assert r.status_code == 200 and r.headers["content-type"].startswith("text/csv")
+    assert r.headers["content-disposition"] == f'attachment; filename="session-{sid}-details.csv"'
+    details = r.text
 
     stored = service.data_dir / stopped["recording_path"]
     # the stored recording holds exactly the published messages, byte for byte
@@ -84,8 +90,9 @@ def test_live_session_equals_offline_analysis(service: Service, tmp_path: Path) 
 
     params = stopped["params"]
     for source in (stored, original):
-        want_csv, want_report = analysis(source, params)
+        want_csv, want_report, want_details = analysis(source, params)
         assert csv == want_csv
+        assert details == want_details
         assert exported["report"] == json.loads(dump_report(want_report))
     out = service.data_dir / "recordings" / str(sid)
     assert (out / "report.json").read_text() == dump_report(want_report)
@@ -104,7 +111,7 @@ def test_live_session_equals_offline_analysis(service: Service, tmp_path: Path) 
     assert exported["session"]["id"] == sid and exported["provisional"] is False
     audit = service.api.get("/api/audit").json()
     actions = {(a["action"], a["object"]) for a in audit}
-    for action in ("export.report", "export.estimates", "export.recording"):
+    for action in ("export.report", "export.estimates", "export.details", "export.recording"):
         assert (action, f"session:{sid}") in actions
     history_without_reports(service, stopped, rep)
 

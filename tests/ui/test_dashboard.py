@@ -422,6 +422,7 @@ def test_report_and_export(page: Page, console: ConsoleLog, shared: dict[str, An
 
     # Plots drawn, with their series (not just axes).
     for plot, colour in (("report-displacement", DISP), ("report-elbow", ELBOW),
+                         ("report-arm", ELEV), ("report-arm", AZIM),
                          ("report-cycles", COMP)):  # fmt: skip
         expect(page.locator(f"[data-plot={plot}] canvas")).to_be_visible(timeout=20_000)
         drawn = colour_pixels(page, f"[data-plot={plot}] canvas", colour)
@@ -442,12 +443,15 @@ def test_report_and_export(page: Page, console: ConsoleLog, shared: dict[str, An
     imu = quality.locator("dt", has_text="IMU samples").locator("xpath=following-sibling::dd")
     assert int(imu.inner_text().replace(",", "")) > 1000
 
-    # Three exports, each a real link a keyboard reaches.
+    # Four exports, each a real link a keyboard reaches.
     exports = page.locator("[data-export]")
-    expect(exports).to_have_count(3)
-    assert [e.get_attribute("data-export") for e in exports.all()] == ["json", "csv", "recording"]
+    expect(exports).to_have_count(4)
+    assert [e.get_attribute("data-export") for e in exports.all()] == [
+        "json", "csv", "details", "recording"
+    ]  # fmt: skip
     expect(page.get_by_role("link", name="Report (JSON)")).to_be_visible()
     expect(page.get_by_role("link", name="Estimates (CSV)")).to_be_visible()
+    expect(page.get_by_role("link", name="Details (CSV)")).to_be_visible()
     expect(page.get_by_role("link", name="Raw recording")).to_be_visible()
     page.wait_for_timeout(300)
     shot(page, "report", full_page=True)
@@ -457,6 +461,12 @@ def test_report_and_export(page: Page, console: ConsoleLog, shared: dict[str, An
     text = Path(dl.value.path()).read_text(encoding="utf-8")
     assert text.startswith("t,elbow_x,elbow_y,elbow_z,shoulder_x"), text[:100]
     assert dl.value.suggested_filename.endswith(".csv")
+    with page.expect_download() as dl:
+        page.locator("[data-export=details]").click()
+    text = Path(dl.value.path()).read_text(encoding="utf-8")
+    assert text.startswith("t,q_w,q_x,q_y,q_z,heading_std_deg"), text[:100]
+    sid = page.url.rstrip("/").rsplit("/", 1)[-1]  # the report's page: /sessions/<id>
+    assert dl.value.suggested_filename == f"session-{sid}-details.csv"
     with page.expect_download() as dl:
         page.locator("[data-export=json]").click()
     assert '"cycles"' in Path(dl.value.path()).read_text(encoding="utf-8")

@@ -4,7 +4,7 @@ import type { AlignedData } from "uplot";
 import { Alert, CycleCounts, CycleTable, KeyFigure } from "../components/bits";
 import { StaticChart } from "../components/StaticChart";
 import { api, ApiError, errorText, getText } from "../lib/api";
-import { parseEstimates, type EstimateColumns } from "../lib/csv";
+import { parseDetails, parseEstimates, type DetailColumns, type EstimateColumns } from "../lib/csv";
 import { cm, dateTime, deg, duration, pct, seconds } from "../lib/format";
 import { LINE, type ChartSpec } from "../lib/plots";
 import { qualityRows } from "../lib/quality";
@@ -15,6 +15,7 @@ export function ReportPage({ id }: { id: number }) {
   const [report, setReport] = useState<Report | null>(null);
   const [cycles, setCycles] = useState<Cycle[] | null>(null);
   const [est, setEst] = useState<EstimateColumns | null>(null);
+  const [det, setDet] = useState<DetailColumns | null>(null);
   const [error, setError] = useState<string | null>(null);
   const [reportError, setReportError] = useState<string | null>(null);
 
@@ -28,6 +29,9 @@ export function ReportPage({ id }: { id: number }) {
     api.get<Cycle[]>(`/api/sessions/${id}/cycles`).then((c) => alive && setCycles(c)).catch(() => alive && setCycles([]));
     getText(`/api/sessions/${id}/estimates.csv`)
       .then((t) => alive && setEst(parseEstimates(t)))
+      .catch(() => undefined);
+    getText(`/api/sessions/${id}/details.csv`)
+      .then((t) => alive && setDet(parseDetails(t)))
       .catch(() => undefined);
     return () => {
       alive = false;
@@ -56,6 +60,16 @@ export function ReportPage({ id }: { id: number }) {
       ],
     };
     const elbow: ChartSpec = { title: "Elbow angle", yLabel: "degrees", yMin: 0, x: "seconds", height: 220, series: [{ label: "Elbow angle", color: LINE.elbow, width: 1.5 }] };
+    const arm: ChartSpec = {
+      title: "Upper arm",
+      yLabel: "degrees",
+      x: "seconds",
+      height: 220,
+      series: [
+        { label: "Elevation", color: LINE.elev, width: 1.5 },
+        { label: "Azimuth", color: LINE.azim, width: 1.5 },
+      ],
+    };
     const cyc: ChartSpec = {
       title: "Time outside per cycle",
       yLabel: "%",
@@ -67,7 +81,7 @@ export function ReportPage({ id }: { id: number }) {
         { label: "Compensatory above", color: LINE.tol, dash: [6, 4], width: 1.5 },
       ],
     };
-    return { disp, elbow, cyc };
+    return { disp, elbow, arm, cyc };
   }, [tol]);
 
   const data = useMemo(() => {
@@ -78,6 +92,10 @@ export function ReportPage({ id }: { id: number }) {
       elbow: [xs, est.elbow] as AlignedData,
     };
   }, [est, tol, t0]);
+  const armData = useMemo(() => {
+    if (!det) return null;
+    return [det.t.map((t) => t - t0), det.elevation, det.azimuth] as AlignedData;
+  }, [det, t0]);
   const cycData = useMemo(() => {
     const xs = cycleList.map((c) => (c.start + c.end) / 2 - t0);
     return [xs, cycleList.map((c) => c.outside_fraction * 100), xs.map(() => maxOut * 100)] as AlignedData;
@@ -132,6 +150,9 @@ export function ReportPage({ id }: { id: number }) {
             <a class="btn" href={`${base}/estimates.csv`} download={`session-${id}-estimates.csv`} data-export="csv">
               Estimates (CSV)
             </a>
+            <a class="btn" href={`${base}/details.csv`} download={`session-${id}-details.csv`} data-export="details">
+              Details (CSV)
+            </a>
             <a class="btn" href={`${base}/recording.jsonl.gz`} download={`session-${id}-recording.jsonl.gz`} data-export="recording">
               Raw recording
             </a>
@@ -149,6 +170,14 @@ export function ReportPage({ id }: { id: number }) {
           <div class="plots">
             <StaticChart name="report-displacement" caption="Shoulder displacement (cm) with the tolerance band" spec={specs.disp} data={data.disp} />
             <StaticChart name="report-elbow" caption="Elbow angle (°)" spec={specs.elbow} data={data.elbow} />
+            {armData && (
+              <StaticChart
+                name="report-arm"
+                caption="Upper-arm elevation (0° hanging, 90° horizontal) and azimuth (°)"
+                spec={specs.arm}
+                data={armData}
+              />
+            )}
             {cycleList.length > 0 && (
               <StaticChart name="report-cycles" caption="Time outside the tolerance per cycle (%), compensatory above the dashed line" spec={specs.cyc} data={cycData} />
             )}
