@@ -461,15 +461,9 @@ def update_improved(
     # views instead of copies when every sample is valid: nothing below writes into them
     a, b, ts = _rows(w.a, v, all_valid), _rows(w.b, v, all_valid), _rows(w.t, v, all_valid)
     tau = ts - t
-    in_recent = tau > -params.window_s
-    # the last ``window_s`` is a suffix of the (sorted) window: a slice when it is one
-    k = int(np.argmax(in_recent)) if len(in_recent) else 0
-    if len(in_recent) and in_recent[k] and in_recent[k:].all():
-        excitation = _rms_horizontal(b[k:])
-    elif np.any(in_recent):
-        excitation = _rms_horizontal(b[in_recent])
-    else:
-        excitation = 0.0
+    # the last ``window_s`` of the (time-ordered) window: a suffix
+    k = int(np.searchsorted(tau, -params.window_s, side="right"))
+    excitation = _rms_horizontal(b[k:]) if k < len(b) else 0.0
     state.excitation = excitation
     if (
         len(a) < 2

@@ -250,6 +250,14 @@ class _Stream:
         return True
 
 
+def _run_end(values: Sequence[int], i: int) -> int:
+    """End of the run of equal values starting at ``i``."""
+    v, j, n = values[i], i + 1, len(values)
+    while j < n and values[j] == v:
+        j += 1
+    return j
+
+
 # ------------------------------------------------------------------------------ stage 1: IMU
 
 _FEW_SAMPLES = 8  # up to this many samples per piece, per-sample work in Python floats
@@ -1324,10 +1332,6 @@ class Pipeline:
         with_imu = np.array(imu_l, dtype=bool)
         spec = list(spec_t)
         asof = np.array(asof_l)
-        # where each row's run of equal nominal specs ends
-        spec_a = np.array(spec)
-        run_end = np.append(np.flatnonzero(spec_a[1:] != spec_a[:-1]) + 1, n)
-        run_end = run_end[np.searchsorted(run_end, np.arange(n), side="right")].tolist()
         if self._snaps:
             si = (
                 np.searchsorted(
@@ -1362,7 +1366,7 @@ class Pipeline:
         while i < n:
             k = spec[i]
             if self._arm_length_fixed(k):
-                j = run_end[i]
+                j = _run_end(spec, i)
                 la[i:j] = self._arm_len
                 i = j
             else:
@@ -1378,7 +1382,7 @@ class Pipeline:
             nom_a[i] = self._nominal_at(tl[i], tuple(sh_rows[i]), good[i], k)
             i += 1
             if self._nom_point is not None:  # set for the rest of this spec's rows
-                j = run_end[i - 1]
+                j = _run_end(spec, i - 1)
                 nom_a[i:j] = self._nom_point
                 i = j
         nom = tuple(nom_a[:, i] for i in range(3))

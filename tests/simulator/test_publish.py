@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import queue
-import socket
 import time
 from collections.abc import Iterator
 
@@ -11,22 +10,16 @@ import pytest
 import zenoh
 
 from backend import keys
+from backend.cli_live import free_port
 from backend.live.zenoh_io import make_config
 from simulator import SimConfig, simulate
 from simulator.publish import DeviceThread, prepare
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
-
-
 @pytest.fixture
 def listener() -> Iterator[tuple[str, queue.Queue[tuple[float, str]]]]:
     """A session listening on loopback; what reaches it is queued as (arrival, key)."""
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     got: queue.Queue[tuple[float, str]] = queue.Queue()
     session = zenoh.open(make_config(listen=endpoint))
     sub = session.declare_subscriber(

@@ -240,7 +240,7 @@ export function LivePage({ device }: { device: string }) {
   // the device again once the live feed hears from it.
   const [unknown, setUnknown] = useState(false);
   const heard = dev.status !== null;
-  useEffect(() => {
+  const load = () =>
     api
       .get<Device>(`/api/devices/${device}`)
       .then((d) => {
@@ -248,7 +248,12 @@ export function LivePage({ device }: { device: string }) {
         setUnknown(false);
       })
       .catch((e) => (e?.status === 404 ? setUnknown(true) : setError(errorText(e))));
-  }, [device, heard]);
+  useEffect(() => {
+    load();
+  }, [device]);
+  useEffect(() => {
+    if (heard && unknown) load(); // read again only a device that was unknown
+  }, [heard, unknown]);
 
   const liveSessionId = dev.status ? dev.status.session_id : (rest?.active_session_id ?? null);
   useEffect(() => {
