@@ -6,6 +6,7 @@ arrays for that would copy the whole buffer on every message.
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Sequence
 from typing import TypeAlias
 
@@ -78,3 +79,68 @@ class RowBuffer:
     def drop(self, k: int) -> None:
         """Remove the ``k`` oldest rows."""
         self.lo = min(self.lo + max(k, 0), self.hi)
+
+
+class RowQueue:
+    """FIFO of float rows that arrive one at a time (tuples, the live case) or in blocks
+    ((n, width) arrays, a batch), taken out in order as float rows or as one array, so
+    neither form is converted to the other unless a consumer asks for it."""
+
+    def __init__(self, width: int) -> None:
+        self.width = width
+        self._items: deque[tuple[float, ...] | FloatArray] = deque()
+        self._off = 0  # rows of the first block already taken
+
+    def push(self, row: tuple[float, ...]) -> None:
+        self._items.append(row)
+
+    def append(self, block: FloatArray) -> None:
+        if len(block):
+            self._items.append(block)
+
+    def take_rows(self, n: int) -> list[Sequence[float]]:
+        """The ``n`` oldest rows as float sequences, removed."""
+        out: list[Sequence[float]] = []
+        items = self._items
+        while len(out) < n:
+            item = items[0]
+            if isinstance(item, tuple):
+                out.append(item)
+                items.popleft()
+                continue
+            k = min(n - len(out), len(item) - self._off)
+            out += item[self._off : self._off + k].tolist()
+            self._off += k
+            if self._off == len(item):
+                items.popleft()
+                self._off = 0
+        return out
+
+    def take_block(self, n: int) -> FloatArray:
+        """The ``n`` oldest rows as one (n, width) array, removed."""
+        parts: list[FloatArray] = []
+        rows: list[tuple[float, ...]] = []  # consecutive single rows, converted together
+        got = 0
+        items = self._items
+        while got < n:
+            item = items[0]
+            if isinstance(item, tuple):
+                rows.append(item)
+                items.popleft()
+                got += 1
+                continue
+            if rows:
+                parts.append(np.array(rows, dtype=np.float64))
+                rows = []
+            k = min(n - got, len(item) - self._off)
+            parts.append(item[self._off : self._off + k])
+            got += k
+            self._off += k
+            if self._off == len(item):
+                items.popleft()
+                self._off = 0
+        if rows:
+            parts.append(np.array(rows, dtype=np.float64))
+        if not parts:
+            return np.empty((0, self.width))
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)

@@ -26,7 +26,6 @@ Both sides then see the same filter, the same delay and no gyro derivative at al
 
 from __future__ import annotations
 
-import array
 import bisect
 import math
 from collections.abc import Iterator, Mapping, Sequence
@@ -42,7 +41,7 @@ from estimators import heading as hd
 from estimators import kinematics as kin
 from estimators import quaternion as quat
 from estimators import rows
-from estimators.buffers import RowBuffer
+from estimators.buffers import RowBuffer, RowQueue
 from estimators.compensation import CompensationParams, Episode, EpisodeTracker, Indicator
 from estimators.cycles import CycleParams, CycleSegmenter
 from estimators.filters import LowPass, dc_group_delay_s
@@ -261,17 +260,21 @@ def _run_end(values: Sequence[int], i: int) -> int:
 # ------------------------------------------------------------------------------ stage 1: IMU
 
 _FEW_SAMPLES = 8  # up to this many samples per piece, per-sample work in Python floats
+_MIRROR = 8  # a large piece leaves this many of its newest samples in the float mirror
 
 
 class _ImuStage:
-    """6D orientation and elbow-acceleration terms at the IMU rate (frame I)."""
+    """6D orientation and elbow-acceleration terms at the IMU rate (frame I).
+
+    Two stores of the same samples: the numpy buffer for the vectorised consumers (grid,
+    batch rows), filled from ``_pieces`` only when one of them asks (a live message then
+    costs no buffer copy), and a mirror of the newest samples in Python floats for single
+    rows (:meth:`at`), which index it without any numpy call."""
 
     # buffer columns: t, segment id, q_IA (4), the 6D filter's sensor orientation q_IS (4),
     # specific force in the sensor frame (3), paper method's eq. 1–2 acceleration (3), the
     # gyro in frame A and its backward difference (3 + 3: predict q_IA past the newest sample)
     T, SEG, Q, QS, ACC, V, W, DW, WIDTH = 0, 1, 2, 6, 10, 13, 16, 19, 22
-    # :meth:`at` spells these out (attribute look-ups cost more than its arithmetic)
-    assert (SEG, Q, W, DW) == (1, 2, 16, 19)
 
     def __init__(self, p: PipelineParams) -> None:
         self.p = p
@@ -291,22 +294,29 @@ class _ImuStage:
         self.gyro_prev: Array | None = None
         self.w_prev: tuple[float, list[float]] | None = None  # last (t, ω_A) of this segment
         self.buf = RowBuffer(self.WIDTH)
-        self.tl: list[float] = []  # the buffer's times as floats (bisect for single rows)
-        self._zeros = np.zeros((_FEW_SAMPLES, 3))  # constant columns of a few rows
-        self._seg_col = np.zeros((_FEW_SAMPLES, 1))
+        self.tl: list[float] = []  # every sample's time, buffered or pending (bisect)
+        # pieces not yet in buf: (q_IA, q_IS, acc, v or None, ω_A, dω_A as array or flat
+        # floats, segment id)
+        self._pieces: list[tuple[Array, Array, Array, Array | None, Array, Any, float]] = []
+        # the newest samples in floats: q_IA (4 per sample), ω_A (3), dω_A (3), segment id
+        self._mq: list[float] = []
+        self._mw: list[float] = []
+        self._mdw: list[float] = []
+        self._mseg: list[float] = []
 
     @property
     def t(self) -> Array:
+        self._flush()
         return self.buf.col(self.T)
 
     @property
     def segid(self) -> Array:
+        self._flush()
         return self.buf.col(self.SEG)
 
     def _reset(self) -> None:
         assert self.ts is not None
         self.vqf = VQF(self.ts, tauAcc=self.p.vqf_tau_acc_s)
-        self._seg_col = np.full((_FEW_SAMPLES, 1), float(self.seg))
         self.gyro_zi = None
         self.gyro_prev = None
         self.w_prev = None
@@ -381,6 +391,7 @@ class _ImuStage:
         q_is = out["quat6D"]
         tl = t.tolist() if tl is None else tl
         q_ia = q_is if self.identity_mount else quat.mul(q_is, self.mount)
+        v: Array | None = None
         if self.p.method == "paper":
             assert self.gyro_lp is not None and self.ts is not None
             if self.gyro_zi is None or self.gyro_prev is None:
@@ -391,35 +402,102 @@ class _ImuStage:
             gdot = (gf - prev) / self.ts  # backward difference of the low-passed gyro (eq. 1)
             self.gyro_prev = gf[-1].copy()
             v = kin.inertial_acceleration(q_is, kin.joint_specific_force(acc, gyr, gdot, self.r))
-        else:
-            v = self._zeros[:n] if n <= _FEW_SAMPLES else np.zeros((n, 3))
         w_a = gyr if self.identity_mount else quat.rotate(self.unmount, gyr)
+        seg = float(self.seg)
         # angular acceleration: backward difference, 0 at a segment's first sample
         t0, w0 = self.w_prev if self.w_prev is not None else (tl[0] - 1.0, w_a[0].tolist())
+        dw: Any
         if n <= _FEW_SAMPLES:  # a message's few: Python floats beat numpy's per-call cost
-            dwl = array.array("d")
+            wl = w_a.ravel().tolist()
+            dw = []
             p0, p1, p2 = w0
-            for tj, (x, y, z) in zip(tl, w_a.tolist(), strict=True):
+            for j, tj in enumerate(tl):
+                x, y, z = wl[3 * j : 3 * j + 3]
                 h = tj - t0
-                dwl.extend(((x - p0) / h, (y - p1) / h, (z - p2) / h))
+                dw += ((x - p0) / h, (y - p1) / h, (z - p2) / h)
                 t0, p0, p1, p2 = tj, x, y, z
-            dw = np.frombuffer(dwl).reshape(n, 3)
-            seg = self._seg_col[:n]
+            self.w_prev = (tl[-1], wl[-3:])
+            self._mq += q_ia.ravel().tolist()
+            self._mw += wl
+            self._mdw += dw
+            self._mseg += [seg] * n
         else:  # the same arithmetic
             prev_w = np.concatenate((np.array([w0], dtype=np.float64), w_a[:-1]))
             prev_t = np.concatenate(([t0], t[:-1]))
             dw = (w_a - prev_w) / (t - prev_t)[:, None]
-            seg = np.full((n, 1), float(self.seg))
-        # one copy into the buffer: per-column assignments cost more than the arithmetic
-        np.concatenate((t[:, None], seg, q_ia, q_is, acc, v, w_a, dw), axis=1, out=self.buf.grow(n))
-        self.w_prev = (tl[-1], w_a[-1].tolist())
-        self.tl.extend(tl)
+            self.w_prev = (tl[-1], w_a[-1].tolist())
+            k = _MIRROR
+            self._mq = q_ia[-k:].ravel().tolist()
+            self._mw = w_a[-k:].ravel().tolist()
+            self._mdw = dw[-k:].ravel().tolist()
+            self._mseg = [seg] * min(k, n)
+        self._pieces.append((q_ia, q_is, acc, v, w_a, dw, seg))
+        self.tl += tl
+
+    def _flush(self) -> None:
+        """Move the pending pieces into the buffer: one copy per column group for all."""
+        pieces = self._pieces
+        if not pieces:
+            return
+        self._pieces = []
+        n = len(self.tl) - len(self.buf)
+        rows = self.buf.grow(n)
+        rows[:, self.T] = self.tl[len(self.tl) - n :]
+        seg = [pc[6] for pc in pieces]
+        if seg.count(seg[0]) == len(seg):  # one segment: no per-piece repeat
+            rows[:, self.SEG] = seg[0]
+        else:
+            rows[:, self.SEG] = np.repeat(seg, [len(pc[0]) for pc in pieces])
+        q_ia, q_is, acc, v, w_a, dw, _ = zip(*pieces, strict=True)
+        np.concatenate(q_ia, out=rows[:, self.Q : self.Q + 4])
+        np.concatenate(q_is, out=rows[:, self.QS : self.QS + 4])
+        np.concatenate(acc, out=rows[:, self.ACC : self.ACC + 3])
+        if self.p.method == "paper":
+            np.concatenate(v, out=rows[:, self.V : self.V + 3])
+        else:
+            rows[:, self.V : self.V + 3] = 0.0
+        np.concatenate(w_a, out=rows[:, self.W : self.W + 3])
+        # consecutive pieces in floats become one array (one conversion, not one per piece)
+        parts: list[Array] = []
+        floats: list[float] = []
+        for x in dw:
+            if isinstance(x, list):
+                floats += x
+            else:
+                if floats:
+                    parts.append(np.array(floats).reshape(-1, 3))
+                    floats = []
+                parts.append(x)
+        if floats:
+            parts.append(np.array(floats).reshape(-1, 3))
+        np.concatenate(parts, out=rows[:, self.DW : self.DW + 3])
 
     def trim(self, t_keep: float) -> None:
         i = max(0, bisect.bisect_left(self.tl, t_keep) - 2)
         if i > 0:
+            if i > len(self.buf):
+                self._flush()
             self.buf.drop(i)
             del self.tl[:i]
+            extra = len(self._mseg) - len(self.tl)
+            if extra > 0:
+                del self._mq[: 4 * extra], self._mw[: 3 * extra], self._mdw[: 3 * extra]
+                del self._mseg[:extra]
+
+    def _sample(self, i: int) -> tuple[list[float], list[float], list[float], float]:
+        """Sample ``i``'s q_IA, ω_A, dω_A and segment id as floats: from the mirror, or
+        the buffer for an older one."""
+        k = i - (len(self.tl) - len(self._mseg))
+        if k >= 0:
+            return (
+                self._mq[4 * k : 4 * k + 4],
+                self._mw[3 * k : 3 * k + 3],
+                self._mdw[3 * k : 3 * k + 3],
+                self._mseg[k],
+            )
+        self._flush()
+        r: list[float] = self.buf.a[self.buf.lo + i].tolist()
+        return r[2:6], r[16:19], r[19:22], r[1]
 
     def smooth(self, g: Array, half: float) -> tuple[Idx, Array]:
         """Acceleration terms (v, u) at grid times ``g``, anti-aliased by a centred Hann
@@ -458,6 +536,7 @@ class _ImuStage:
         """Fusion channels of samples ``lo:hi`` (n, 15): the acceleration term v (used as
         is), the lever term u = q r q* (differentiated after the low-pass), and the sensor
         axes in I (for the bias and lever fits). Computed only when the grid needs them."""
+        self._flush()
         rows = self.buf.view()[lo:hi]
         if self.p.method == "paper":
             v = rows[:, self.V : self.V + 3]
@@ -525,19 +604,16 @@ class _ImuStage:
             # the newest sample at or before asof (usually the newest of all)
             j = n - 1 if asof >= tl[-1] else bisect.bisect_right(tl, asof) - 1
             jc = j if j > 0 else 0
-            r = self.buf.a[self.buf.lo + jc].tolist()
-            q = rows.predict(rows.SCALAR, r[2:6], r[16:19], r[19:22], s - tl[jc])
-            return j >= 0, q, r[1]
+            q, w, dw, seg = self._sample(jc)
+            return j >= 0, rows.predict(rows.SCALAR, q, w, dw, s - tl[jc]), seg
         i1 = bisect.bisect_left(tl, s)
         i1c = min(max(i1, 1), n - 1)
         i0 = i1c - 1
-        a, base = self.buf.a, self.buf.lo
-        r0 = a[base + i0, :6].tolist()
-        r1 = a[base + i1c, :6].tolist()
-        ok = 0 < i1 < n and r0[1] == r1[1]
+        q0, _, _, seg0 = self._sample(i0)
+        q1, _, _, seg1 = self._sample(i1c)
         t0, t1 = tl[i0], tl[i1c]
         w = rows.SCALAR.clip((s - t0) / (t1 - t0), 0.0, 1.0)
-        return ok, rows.nlerp(rows.SCALAR, r0[2:], r1[2:], w), r1[1]
+        return 0 < i1 < n and seg0 == seg1, rows.nlerp(rows.SCALAR, q0, q1, w), seg1
 
     def interp_channels(self, s: Array) -> tuple[Idx, Array]:
         """Fusion channels linearly interpolated at ``s`` (no anti-alias: the paper's way)."""
@@ -667,6 +743,11 @@ class _GridStage:
         if self.k_next is None:
             self.k_next = int(math.ceil(max(imu.tl[0], robot.tl[0]) / self.dt))
         k_end = int(math.floor(until / self.dt))
+        if k_end * self.dt > until:
+            # k·dt can round above ``until`` (1503 × 0.04 = 60.120000000000005 > 60.12): that
+            # point lies past the newest sample, would be judged invalid now and never be
+            # revisited (a filter restart a batch run does not have). The next advance takes it.
+            k_end -= 1
         if k_end < self.k_next:
             return
         g = np.arange(self.k_next, k_end + 1, dtype=np.float64) * self.dt
@@ -777,7 +858,8 @@ class Pipeline:
         self._grid = _GridStage(p)
         # messages fed since the last poll
         self._imu_pending: list[tuple[Array, Array, Array]] = []
-        self._robot_pending: list[tuple[Array, Array, Array, Array | None]] = []
+        # (t, wrist, proximal, elbow, the first three as float lists if at hand)
+        self._robot_pending: list[tuple[Array, Array, Array, Array | None, Any]] = []
         # consecutive rows fed by feed_*_rows, not yet cut out as one pending piece:
         # [t, gyr, acc, i0, i1] and [t, wrist, proximal, elbow, i0, i1]
         self._imu_run: list[Any] | None = None
@@ -793,7 +875,7 @@ class Pipeline:
         # has reached the row, else its prediction starts there)
         self._decisions: list[tuple[bool, int, float]] = []
         self._n_done = 0
-        self._rowbuf = RowBuffer(9)  # wrist, p_E, x_C of the robot samples not yet emitted
+        self._rowq = RowQueue(9)  # wrist, p_E, x_C of the robot samples not yet emitted
         # heading
         self._hstate = hd.HeadingState()
         self._hseg = 0
@@ -950,7 +1032,7 @@ class Pipeline:
                 self.quality.reject("coincident_cuffs")
                 return False
         self._close_robot_run()
-        self._robot_pending.append((t, wrist, proximal, elbow))
+        self._robot_pending.append((t, wrist, proximal, elbow, (tl, wl, pl)))
         self._accept_robot(tl)
         return True
 
@@ -1001,7 +1083,7 @@ class Pipeline:
         if run is not None:
             t, wrist, prox, elbow, i0, i1 = run
             e = None if elbow is None else elbow[i0:i1]
-            self._robot_pending.append((t[i0:i1], wrist[i0:i1], prox[i0:i1], e))
+            self._robot_pending.append((t[i0:i1], wrist[i0:i1], prox[i0:i1], e, None))
             self._robot_run = None
 
     def feed_event(self, t: float, etype: str, point: Array | None = None) -> bool:
@@ -1021,6 +1103,8 @@ class Pipeline:
         ``imu_predict_s`` behind (the upper arm is then predicted from the newest IMU
         sample), or the robot ran ahead by ``imu_wait_s`` (then they are emitted without
         IMU-derived values). Decided in feed order, so batching changes nothing."""
+        if self._n_decided >= len(self._row_t):
+            return
         off = self.params.robot_time_offset_s
         wait = self.params.imu_wait_s
         ahead = self.params.imu_predict_s
@@ -1108,7 +1192,7 @@ class Pipeline:
         if self._robot_pending:
             pend_r, self._robot_pending = self._robot_pending, []
             if len(pend_r) == 1:
-                self._robot_samples(*pend_r[0], off)
+                self._robot_samples(*pend_r[0][:4], off, pend_r[0][4])
             else:  # one vectorised call (elementwise: the same numbers as one by one)
                 given = [c[3] for c in pend_r]
                 elbow = None
@@ -1204,14 +1288,20 @@ class Pipeline:
         self._snap_t.extend(s[0] for s in snaps)
 
     def _robot_samples(
-        self, t: Array, wrist: Array, prox: Array, elbow: Array | None, off: float
+        self,
+        t: Array,
+        wrist: Array,
+        prox: Array,
+        elbow: Array | None,
+        off: float,
+        lists: tuple[list[float], list[list[float]], list[list[float]]] | None = None,
     ) -> None:
         """Elbow and forearm axis from the cuffs (eq. 13), or the robot's own elbow."""
         n = len(t)
         lp = self.params.cuff_to_elbow_m
         if n <= _SMALL:
             M = rows.SCALAR
-            tl, wl, pl = t.tolist(), wrist.tolist(), prox.tolist()
+            tl, wl, pl = lists or (t.tolist(), wrist.tolist(), prox.tolist())
             el = None if elbow is None else elbow.tolist()
             pes: list[tuple[float, ...]] = []
             for j, (w, p) in enumerate(zip(wl, pl, strict=True)):
@@ -1219,7 +1309,7 @@ class Pipeline:
                 pe = (p[0] - lp * xc[0], p[1] - lp * xc[1], p[2] - lp * xc[2])
                 if el is not None:
                     pe = tuple(e if math.isfinite(e) else v for e, v in zip(el[j], pe, strict=True))
-                self._rowbuf.push((*w, *pe, *xc))
+                self._rowq.push((*w, *pe, *xc))
                 pes.append(pe)
             self._robot.append([x - off for x in tl] if off else tl, pes, self.quality)
             return
@@ -1229,7 +1319,7 @@ class Pipeline:
         if elbow is not None:
             pe_v = tuple(np.where(np.isfinite(elbow[:, i]), elbow[:, i], pe_v[i]) for i in range(3))
         block = np.column_stack((wrist, *pe_v, *xc_v))
-        self._rowbuf.append(block)
+        self._rowq.append(block)
         self._robot.append((t - off).tolist(), block[:, 3:6], self.quality)
 
     def _rows(self) -> Output:
@@ -1244,8 +1334,6 @@ class Pipeline:
         n = hi - lo
         t = self._row_t[lo:hi]
         dec = self._decisions[lo:hi]
-        block = self._rowbuf.view()[:n]  # valid until the next append (none before return)
-        self._rowbuf.drop(n)
         # compensation rule (§3.4); segment first: a completed cycle sets the tolerated
         # duration from its end on
         boundaries: list[float]
@@ -1255,7 +1343,7 @@ class Pipeline:
             flat: list[float] = []
             boundaries, disp = [], []
             seg = self._segmenter
-            for tj, dj, rj in zip(t, dec, block.tolist(), strict=True):
+            for tj, dj, rj in zip(t, dec, self._rowq.take_rows(n), strict=True):
                 row = self._row(tj, dj, rj)
                 flat.extend(row)
                 disp.append(row[_DISP])
@@ -1265,6 +1353,7 @@ class Pipeline:
             # tracked by the cyclic collector as long as the rows live)
             m = np.fromiter(flat, np.float64, len(flat)).reshape(n, _NCOL)  # np.array: 1.5x
         else:
+            block = self._rowq.take_block(n)
             with np.errstate(invalid="ignore", divide="ignore"):  # NaN where no estimate
                 m = self._rows_vector(np.array(t), dec, block)
             tt, disp = m[:, 0], m[:, _DISP]
