@@ -321,8 +321,11 @@ class _ImuStage:
         self.gyro_prev = None
         self.w_prev = None
 
-    def process(self, t: Array, gyr: Array, acc: Array, q: Quality) -> None:
-        """Samples ``t`` (n,) s, ``gyr`` (n, 3) rad/s, ``acc`` (n, 3) m/s²."""
+    def process(
+        self, t: Array, gyr: Array, acc: Array, q: Quality, tl: list[float] | None = None
+    ) -> None:
+        """Samples ``t`` (n,) s (``tl``: as floats, if at hand), ``gyr`` (n, 3) rad/s,
+        ``acc`` (n, 3) m/s²."""
         if self.ts is None:
             self.probe.append((t, gyr, acc))
             if sum(len(c[0]) for c in self.probe) < self.p.rate_probe_samples:
@@ -330,7 +333,7 @@ class _ImuStage:
             t = np.concatenate([c[0] for c in self.probe])
             gyr = np.concatenate([c[1] for c in self.probe])
             acc = np.concatenate([c[2] for c in self.probe])
-            self.probe = []
+            self.probe, tl = [], None
             dt = float(np.median(np.diff(t[: self.p.rate_probe_samples])))
             self.ts = min(max(dt, 1e-3), 0.1)  # contract: 10..1000 Hz
             if self.p.method == "paper":
@@ -338,7 +341,8 @@ class _ImuStage:
             self._reset()
         assert self.ts is not None
         ts = self.ts
-        tl = t.tolist()
+        if tl is None:
+            tl = t.tolist()
         if self.last is not None:
             # the usual message: no gap (a plain loop, cheaper than numpy for a few samples)
             prev, limit = self.last[0], 2.5 * ts
@@ -664,7 +668,8 @@ class _RobotStage:
             prev = x
         self.seg = seg
         if isinstance(p_e, list):
-            self.tail.extend((x, g, *e) for x, g, e in zip(s, segs, p_e, strict=True))
+            for x, g, e in zip(s, segs, p_e, strict=True):
+                self.tail.append((x, g, *e))
         else:
             self._flush()
             rows = np.empty((len(s), 5))
@@ -857,7 +862,7 @@ class Pipeline:
         self._robot = _RobotStage(p)
         self._grid = _GridStage(p)
         # messages fed since the last poll
-        self._imu_pending: list[tuple[Array, Array, Array]] = []
+        self._imu_pending: list[tuple[Array, Array, Array, list[float] | None]] = []
         # (t, wrist, proximal, elbow, the first three as float lists if at hand)
         self._robot_pending: list[tuple[Array, Array, Array, Array | None, Any]] = []
         # consecutive rows fed by feed_*_rows, not yet cut out as one pending piece:
@@ -961,11 +966,14 @@ class Pipeline:
     ) -> bool:
         # (pending messages hold no Python lists: in a batch they would be many thousand
         # objects for the garbage collector to walk again and again)
-        if not self._admit_imu(float(t[0]), float(t[-1]), len(t), seq, segment):
+        tl = t.tolist()
+        if not self._admit_imu(tl[0], tl[-1], len(tl), seq, segment):
             return False
-        self._close_imu_run()
-        self._imu_pending.append((t, gyr, acc))
-        self._decide()
+        if self._imu_run is not None:
+            self._close_imu_run()
+        self._imu_pending.append((t, gyr, acc, tl))
+        if self._n_decided < len(self._row_t):
+            self._decide()
         return True
 
     def feed_imu_rows(
@@ -1010,7 +1018,7 @@ class Pipeline:
         run = self._imu_run
         if run is not None:
             t, gyr, acc, i0, i1 = run
-            self._imu_pending.append((t[i0:i1], gyr[i0:i1], acc[i0:i1]))
+            self._imu_pending.append((t[i0:i1], gyr[i0:i1], acc[i0:i1], None))
             self._imu_run = None
 
     def feed_robot(
@@ -1031,7 +1039,8 @@ class Pipeline:
             if x * x + y * y + z * z <= _COINCIDENT_M2:
                 self.quality.reject("coincident_cuffs")
                 return False
-        self._close_robot_run()
+        if self._robot_run is not None:
+            self._close_robot_run()
         self._robot_pending.append((t, wrist, proximal, elbow, (tl, wl, pl)))
         self._accept_robot(tl)
         return True
@@ -1180,7 +1189,8 @@ class Pipeline:
         if self._imu_pending:
             pend, self._imu_pending = self._imu_pending, []
             if len(pend) == 1:
-                self._imu.process(*pend[0], self.quality)
+                t, gyr, acc, tl = pend[0]
+                self._imu.process(t, gyr, acc, self.quality, tl)
             else:
                 self._imu.process(
                     np.concatenate([c[0] for c in pend]),
@@ -1391,18 +1401,18 @@ class Pipeline:
         ok_p, q_p, seg_p = self._imu.at(s - latency, asof)
         ok_n, q_n, seg_n = self._imu.at(s, asof)
         ok = ok_p and with_imu and ok_n and seg_n == seg_p
-        h = rows.heading(M, s, ok, snap, seg_p)
-        q_ra, x_now, x_a = rows.upper_arm(M, h.delta, h.good, q_n, q_p)
+        h, q_ra, x_now, x_a = rows.heading_arm_scalar(s, ok, snap, seg_p, q_n, q_p)
         wrist, p_e, x_c = r[0:3], r[3:6], r[6:9]
         prev_t, prev = self._xc_prev_t, self._xc_prev
         self._xc_prev_t, self._xc_prev = t, x_c
-        angle = self._angle(M, x_now, x_a, x_c, prev, t - prev_t, latency)
         la = self._arm_length(t, p_e, k)
         sh = rows.shoulder(p_e, x_a, la)
         nom = self._nominal_at(t, sh, h.good, k)
-        disp = rows.displacement(M, sh, nom, p.displacement_norm)
-        conv = rows.conventional_angle(M, p_e, nom, x_c)
-        elev, azim = rows.elevation_azimuth(M, x_now)
+        angle, disp, conv, elev, azim = rows.angles_scalar(
+            x_now, x_c, p_e, sh, nom, p.displacement_norm
+        )
+        if p.elbow_angle_timing != "fresh":
+            angle = self._angle(M, x_now, x_a, x_c, prev, t - prev_t, latency)
         if not with_imu:
             self.quality.rows_without_imu += 1
         good = 1.0 if h.good else 0.0

@@ -232,6 +232,89 @@ def upper_arm(
     return (qw, qx, qy, qz), xn, xa
 
 
+NAN3 = (NAN, NAN, NAN)
+NAN4 = (NAN, NAN, NAN, NAN)
+
+
+def heading_arm_scalar(
+    s: float,
+    ok: bool,
+    snap: Sequence[float],
+    seg: float,
+    q_now: Sequence[float],
+    q_pair: Sequence[float],
+) -> tuple[Heading, tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
+    """``heading(SCALAR, ...)`` then ``upper_arm(SCALAR, ...)`` for one row, the same
+    expressions in the same order (bit-identical, tested) with the ``where`` branches taken
+    as ``if``: the live pipeline computes one row per robot sample, where the generic
+    namespace's calls cost twice the arithmetic. Returns the heading, ``q_RA``, its x axis
+    now and ``x_A`` at the robot's instant."""
+    _, d, rate, t_upd, std0, conv, sseg, _ = snap
+    if not (ok and math.isfinite(d) and sseg == seg):
+        return Heading(NAN, NAN, 0.0, NAN, False), NAN4, NAN3, NAN3
+    since = s - t_upd
+    delta = d + rate * since
+    if not since > 0.0:  # M.maximum(0.0, since): NaN stays NaN
+        since = 0.0 if since == since else since
+    grow = DRIFT_STD_RAD_S * since
+    std_deg = math.sqrt(std0 * std0 + grow * grow) * RAD2DEG
+    if math.isfinite(std_deg):
+        r = std_deg / 3.0
+        conf = 1.0 / (1.0 + r * r)
+    else:
+        std_deg, conf = NAN, 0.0
+    if not math.isfinite(delta):
+        return Heading(delta, std_deg, conf, NAN, False), NAN4, NAN3, NAN3
+    h = Heading(delta, std_deg, conf, (delta % TWO_PI) * RAD2DEG, conv > 0.0)
+    if not h.good:
+        return h, NAN4, NAN3, NAN3
+    c, sn = math.cos(delta / 2.0), math.sin(delta / 2.0)
+    w, x, y, z = q_now
+    qw, qx, qy, qz = c * w - sn * z, c * x - sn * y, c * y + sn * x, c * z + sn * w
+    pw, px, py, pz = q_pair
+    ax, ay, az = (
+        1.0 - 2.0 * (py * py + pz * pz),
+        2.0 * (px * py + pw * pz),
+        2.0 * (px * pz - pw * py),
+    )
+    cd, sd = math.cos(delta), math.sin(delta)
+    return (
+        h,
+        (qw, qx, qy, qz),
+        (1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy + qw * qz), 2.0 * (qx * qz - qw * qy)),
+        (cd * ax - sd * ay, sd * ax + cd * ay, az),
+    )
+
+
+def _s_acos_deg(c: float) -> float:
+    return math.acos(-1.0 if c < -1.0 else 1.0 if c > 1.0 else c) * RAD2DEG  # NaN passes
+
+
+def angles_scalar(
+    x_now: Sequence[float],
+    x_c: Sequence[float],
+    p_e: Sequence[float],
+    sh: Sequence[float],
+    nom: Sequence[float],
+    norm: str,
+) -> tuple[float, float, float, float, float]:
+    """For one row, with the expressions of the generic functions (bit-identical, tested):
+    ``angle_deg(x_now, x_c)``, ``displacement(sh, nom)``, ``conventional_angle(p_e, nom,
+    x_c)`` and ``elevation_azimuth(x_now)``."""
+    angle = _s_acos_deg((x_now[0] * x_c[0] + x_now[1] * x_c[1]) + x_now[2] * x_c[2])
+    dx, dy, dz = sh[0] - nom[0], sh[1] - nom[1], sh[2] - nom[2]
+    sq = dx * dx + dy * dy
+    if norm == "3d":
+        sq = sq + dz * dz
+    x, y, z = p_e[0] - nom[0], p_e[1] - nom[1], p_e[2] - nom[2]
+    n = math.sqrt((x * x + y * y) + z * z)
+    if not n > 0.0:
+        n = NAN
+    conv = _s_acos_deg(((x / n) * x_c[0] + (y / n) * x_c[1]) + (z / n) * x_c[2])
+    elev = _s_acos_deg(-x_now[2])
+    return angle, math.sqrt(sq), conv, elev, math.atan2(x_now[0], x_now[1]) * RAD2DEG
+
+
 def _x_axis(w: Any, x: Any, y: Any, z: Any) -> tuple[Any, Any, Any]:
     return 1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y)
 

@@ -132,3 +132,100 @@ def test_nothing_raises_on_nan_and_zero() -> None:
 def test_mod_is_pythons_percent(xs: list[float], m: float) -> None:
     """``%`` on arrays (np.remainder) equals Python's on floats: negative, huge, ±0, inf."""
     _same([M_S.mod(x, m) for x in xs], M_V.mod(np.array(xs), m))
+
+
+wild = st.one_of(finite, st.sampled_from([math.nan, math.inf, -math.inf, 0.0, -0.0, 1e300]))
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    wild,  # s
+    st.booleans(),  # ok
+    st.tuples(
+        wild,
+        wild,
+        wild,
+        wild,
+        wild,
+        st.sampled_from([0.0, 1.0, math.nan]),
+        st.sampled_from([0.0, 1.0, math.nan]),
+        wild,
+    ),
+    st.sampled_from([0.0, 1.0]),  # segment
+    quats,
+    st.one_of(quats, st.just((math.nan,) * 4)),
+)
+def test_fused_heading_arm_equals_generic(
+    s: float,
+    ok: bool,
+    snap: tuple[float, ...],
+    seg: float,
+    q_now: tuple[float, ...],
+    q_pair: tuple[float, ...],
+) -> None:
+    """The live row's fused form equals heading() then upper_arm() bit for bit, on floats
+    and on arrays, whatever the snapshot holds (NaN, ±inf, updates in the future)."""
+    h, q_ra, x_now, x_a = rows.heading_arm_scalar(s, ok, snap, seg, q_now, q_pair)
+    fused = (*h[:4], float(h.good), *q_ra, *x_now, *x_a)
+    hs = rows.heading(M_S, s, ok, snap, seg)
+    generic = (
+        *hs[:4],
+        float(hs.good),
+        *(v for part in rows.upper_arm(M_S, hs.delta, hs.good, q_now, q_pair) for v in part),
+    )
+    _same(fused, generic)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        hv = rows.heading(
+            M_V, np.array([s]), np.array([ok]), tuple(np.array([v]) for v in snap), np.array([seg])
+        )
+        parts = rows.upper_arm(
+            M_V,
+            hv.delta,
+            hv.good,
+            tuple(np.array([v]) for v in q_now),
+            tuple(np.array([v]) for v in q_pair),
+        )
+    vector = np.concatenate(
+        [
+            *(np.asarray(v, dtype=float) for v in hv[:4]),
+            hv.good.astype(float),
+            *(v for part in parts for v in part),
+        ]
+    )
+    _same(fused, vector)
+
+
+vec3 = st.tuples(wild, wild, wild)
+
+
+@settings(max_examples=300, deadline=None)
+@given(vec3, vec3, vec3, vec3, vec3, st.sampled_from(["horizontal", "3d"]))
+def test_fused_angles_equal_generic(
+    x_now: tuple[float, ...],
+    x_c: tuple[float, ...],
+    p_e: tuple[float, ...],
+    sh: tuple[float, ...],
+    nom: tuple[float, ...],
+    norm: str,
+) -> None:
+    """The live row's fused angles equal the generic functions bit for bit (NaN, ±inf, a
+    nominal point on the elbow, vectors off the unit sphere)."""
+    fused = rows.angles_scalar(x_now, x_c, p_e, sh, nom, norm)
+    generic = (
+        rows.angle_deg(M_S, x_now, x_c),
+        rows.displacement(M_S, sh, nom, norm),
+        rows.conventional_angle(M_S, p_e, nom, x_c),
+        *rows.elevation_azimuth(M_S, x_now),
+    )
+    _same(fused, generic)
+    col = [tuple(np.array([v]) for v in x) for x in (x_now, x_c, p_e, sh, nom)]
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        vector = np.concatenate(
+            [
+                rows.angle_deg(M_V, col[0], col[1]),
+                rows.displacement(M_V, col[3], col[4], norm),
+                rows.conventional_angle(M_V, col[2], col[4], col[1]),
+                *rows.elevation_azimuth(M_V, col[0]),
+            ]
+        )
+    _same(fused, vector)
