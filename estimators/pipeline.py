@@ -613,8 +613,13 @@ class _ImuStage:
         i1 = bisect.bisect_left(tl, s)
         i1c = min(max(i1, 1), n - 1)
         i0 = i1c - 1
-        q0, _, _, seg0 = self._sample(i0)
-        q1, _, _, seg1 = self._sample(i1c)
+        k = i0 - (n - len(self._mseg))
+        if k >= 0:  # both in the mirror (the live case): one slice
+            q01, (seg0, seg1) = self._mq[4 * k : 4 * k + 8], self._mseg[k : k + 2]
+            q0, q1 = q01[:4], q01[4:]
+        else:
+            q0, _, _, seg0 = self._sample(i0)
+            q1, _, _, seg1 = self._sample(i1c)
         t0, t1 = tl[i0], tl[i1c]
         w = rows.SCALAR.clip((s - t0) / (t1 - t0), 0.0, 1.0)
         return 0 < i1 < n and seg0 == seg1, rows.nlerp(rows.SCALAR, q0, q1, w), seg1
@@ -908,6 +913,7 @@ class Pipeline:
         self._arm_spec = -1
         self._arm_spec_done = -1
         self._arm_pts: list[Array] = []
+        self._arm_free: set[int] = set()  # specs whose rows all use _arm_len as it is
         self.arm_length_estimate: float | None = None
         # compensation
         self._cp = CompensationParams(
@@ -1184,8 +1190,10 @@ class Pipeline:
 
     def poll(self) -> Output:
         """Run everything that is ready; return the new rows and feedback."""
-        self._close_imu_run()
-        self._close_robot_run()
+        if self._imu_run is not None:
+            self._close_imu_run()
+        if self._robot_run is not None:
+            self._close_robot_run()
         if self._imu_pending:
             pend, self._imu_pending = self._imu_pending, []
             if len(pend) == 1:
@@ -1405,7 +1413,7 @@ class Pipeline:
         wrist, p_e, x_c = r[0:3], r[3:6], r[6:9]
         prev_t, prev = self._xc_prev_t, self._xc_prev
         self._xc_prev_t, self._xc_prev = t, x_c
-        la = self._arm_length(t, p_e, k)
+        la = self._arm_len if k in self._arm_free else self._arm_length(t, p_e, k)
         sh = rows.shoulder(p_e, x_a, la)
         nom = self._nominal_at(t, sh, h.good, k)
         angle, disp, conv, elev, azim = rows.angles_scalar(
@@ -1523,10 +1531,11 @@ class Pipeline:
     def _arm_length_fixed(self, k: int) -> bool:
         """Whether :meth:`_arm_length` returns ``_arm_len`` for every row of spec ``k`` from
         here on, whatever the row."""
-        if self.params.arm_length != "calibrate":
-            return True
         kind, _, point = self._specs[k]
-        return kind != "point" or point is None or k == self._arm_spec_done
+        if self.params.arm_length != "calibrate" or kind != "point" or point is None:
+            self._arm_free.add(k)  # for good: a spec's kind and point never change
+            return True
+        return k == self._arm_spec_done
 
     def _arm_length(self, t: float, p_e: Sequence[float], k: int) -> float:
         """Upper-arm length at a row: the parameter, or measured at the rope reference.
