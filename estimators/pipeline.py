@@ -295,9 +295,11 @@ class _ImuStage:
         self.w_prev: tuple[float, list[float]] | None = None  # last (t, ω_A) of this segment
         self.buf = RowBuffer(self.WIDTH)
         self.tl: list[float] = []  # every sample's time, buffered or pending (bisect)
-        # pieces not yet in buf: (q_IA, q_IS, acc, v or None, ω_A, dω_A as array or flat
-        # floats, segment id)
-        self._pieces: list[tuple[Array, Array, Array, Array | None, Array, Any, float]] = []
+        # pieces not yet in buf: q_IA, q_IS, acc, v or None, ω_A, the (t, ω_A) before the
+        # first sample (dω_A's backward difference), segment id, whether a segment starts
+        self._pieces: list[
+            tuple[Array, Array, Array, Array | None, Array, float, Any, float, bool]
+        ] = []
         # the newest samples in floats: q_IA (4 per sample), ω_A (3), dω_A (3), segment id
         self._mq: list[float] = []
         self._mw: list[float] = []
@@ -409,11 +411,15 @@ class _ImuStage:
         w_a = gyr if self.identity_mount else quat.rotate(self.unmount, gyr)
         seg = float(self.seg)
         # angular acceleration: backward difference, 0 at a segment's first sample
-        t0, w0 = self.w_prev if self.w_prev is not None else (tl[0] - 1.0, w_a[0].tolist())
-        dw: Any
+        fresh = self.w_prev is None
+        if self.w_prev is None:
+            t0, w0 = tl[0] - 1.0, w_a[0].tolist()
+        else:
+            t0, w0 = self.w_prev
+        self._pieces.append((q_ia, q_is, acc, v, w_a, t0, w0, seg, fresh))
         if n <= _FEW_SAMPLES:  # a message's few: Python floats beat numpy's per-call cost
             wl = w_a.ravel().tolist()
-            dw = []
+            dw: list[float] = []
             p0, p1, p2 = w0
             for j, tj in enumerate(tl):
                 x, y, z = wl[3 * j : 3 * j + 3]
@@ -428,14 +434,13 @@ class _ImuStage:
         else:  # the same arithmetic
             prev_w = np.concatenate((np.array([w0], dtype=np.float64), w_a[:-1]))
             prev_t = np.concatenate(([t0], t[:-1]))
-            dw = (w_a - prev_w) / (t - prev_t)[:, None]
+            dwa = (w_a - prev_w) / (t - prev_t)[:, None]
             self.w_prev = (tl[-1], w_a[-1].tolist())
             k = _MIRROR
             self._mq = q_ia[-k:].ravel().tolist()
             self._mw = w_a[-k:].ravel().tolist()
-            self._mdw = dw[-k:].ravel().tolist()
+            self._mdw = dwa[-k:].ravel().tolist()
             self._mseg = [seg] * min(k, n)
-        self._pieces.append((q_ia, q_is, acc, v, w_a, dw, seg))
         self.tl += tl
 
     def _flush(self) -> None:
@@ -447,34 +452,39 @@ class _ImuStage:
         n = len(self.tl) - len(self.buf)
         rows = self.buf.grow(n)
         rows[:, self.T] = self.tl[len(self.tl) - n :]
-        seg = [pc[6] for pc in pieces]
+        seg = [pc[7] for pc in pieces]
         if seg.count(seg[0]) == len(seg):  # one segment: no per-piece repeat
             rows[:, self.SEG] = seg[0]
         else:
             rows[:, self.SEG] = np.repeat(seg, [len(pc[0]) for pc in pieces])
-        q_ia, q_is, acc, v, w_a, dw, _ = zip(*pieces, strict=True)
+        q_ia, q_is, acc, v, w_a, *_ = zip(*pieces, strict=True)
         np.concatenate(q_ia, out=rows[:, self.Q : self.Q + 4])
-        np.concatenate(q_is, out=rows[:, self.QS : self.QS + 4])
+        if self.identity_mount:
+            rows[:, self.QS : self.QS + 4] = rows[:, self.Q : self.Q + 4]
+        else:
+            np.concatenate(q_is, out=rows[:, self.QS : self.QS + 4])
         np.concatenate(acc, out=rows[:, self.ACC : self.ACC + 3])
         if self.p.method == "paper":
             np.concatenate(v, out=rows[:, self.V : self.V + 3])
         else:
             rows[:, self.V : self.V + 3] = 0.0
-        np.concatenate(w_a, out=rows[:, self.W : self.W + 3])
-        # consecutive pieces in floats become one array (one conversion, not one per piece)
-        parts: list[Array] = []
-        floats: list[float] = []
-        for x in dw:
-            if isinstance(x, list):
-                floats += x
-            else:
-                if floats:
-                    parts.append(np.array(floats).reshape(-1, 3))
-                    floats = []
-                parts.append(x)
-        if floats:
-            parts.append(np.array(floats).reshape(-1, 3))
-        np.concatenate(parts, out=rows[:, self.DW : self.DW + 3])
+        w = rows[:, self.W : self.W + 3]
+        np.concatenate(w_a, out=w)
+        # dω: the same backward difference as _run's (bit-identical), over all pieces at
+        # once; a piece's first sample has the previous row before it, unless it is the
+        # first pending one or starts a segment: then the (t, ω) _run took
+        prev_t = np.empty(n)
+        prev_t[1:] = rows[:-1, self.T]
+        prev_w = np.empty((n, 3))
+        prev_w[1:] = w[:-1]
+        j = 0
+        for i, pc in enumerate(pieces):
+            if i == 0 or pc[8]:
+                prev_t[j], prev_w[j] = pc[5], pc[6]
+            j += len(pc[0])
+        np.divide(
+            w - prev_w, (rows[:, self.T] - prev_t)[:, None], out=rows[:, self.DW : self.DW + 3]
+        )
 
     def trim(self, t_keep: float) -> None:
         i = max(0, bisect.bisect_left(self.tl, t_keep) - 2)
