@@ -267,7 +267,7 @@ class _ImuStage:
     """6D orientation and elbow-acceleration terms at the IMU rate (frame I).
 
     Two stores of the same samples: the numpy buffer for the vectorised consumers (grid,
-    batch rows), filled from ``_pieces`` only when one of them asks (a live message then
+    batch rows), filled from the pending pieces only when one of them asks (a live message then
     costs no buffer copy), and a mirror of the newest samples in Python floats for single
     rows (:meth:`at`), which index it without any numpy call."""
 
@@ -292,14 +292,23 @@ class _ImuStage:
         self.gyro_lp: LowPass | None = None
         self.gyro_zi: Array | None = None
         self.gyro_prev: Array | None = None
-        self.w_prev: tuple[float, list[float]] | None = None  # last (t, ω_A) of this segment
+        # last (t, ω_A) of this segment (tuples: the collector stops tracking the pending
+        # pieces that hold it)
+        self.w_prev: tuple[float, tuple[float, ...]] | None = None
         self.buf = RowBuffer(self.WIDTH)
         self.tl: list[float] = []  # every sample's time, buffered or pending (bisect)
-        # pieces not yet in buf: q_IA, q_IS, acc, v or None, ω_A, the (t, ω_A) before the
-        # first sample (dω_A's backward difference), segment id, whether a segment starts
-        self._pieces: list[
-            tuple[Array, Array, Array, Array | None, Array, float, Any, float, bool]
-        ] = []
+        # pieces not yet in buf, one list per column group (per-piece tuples would stay
+        # tracked by the cyclic collector: they hold arrays)
+        self._p_q: list[Array] = []  # q_IA
+        self._p_qs: list[Array] = []  # q_IS
+        self._p_acc: list[Array] = []
+        self._p_v: list[Array | None] = []
+        self._p_w: list[Array] = []  # ω_A
+        self._p_seg: list[float] = []
+        self._p_len: list[int] = []
+        # (pending row, t, ω_A) where dω's previous sample is not the row before: the first
+        # pending piece and every segment start
+        self._p_prev: list[tuple[int, float, tuple[float, ...]]] = []
         # the newest samples in floats: q_IA (4 per sample), ω_A (3), dω_A (3), segment id
         self._mq: list[float] = []
         self._mw: list[float] = []
@@ -413,10 +422,18 @@ class _ImuStage:
         # angular acceleration: backward difference, 0 at a segment's first sample
         fresh = self.w_prev is None
         if self.w_prev is None:
-            t0, w0 = tl[0] - 1.0, w_a[0].tolist()
+            t0, w0 = tl[0] - 1.0, tuple(w_a[0].tolist())
         else:
             t0, w0 = self.w_prev
-        self._pieces.append((q_ia, q_is, acc, v, w_a, t0, w0, seg, fresh))
+        if fresh or not self._p_len:
+            self._p_prev.append((len(self.tl) - len(self.buf), t0, w0))
+        self._p_q.append(q_ia)
+        self._p_qs.append(q_is)
+        self._p_acc.append(acc)
+        self._p_v.append(v)
+        self._p_w.append(w_a)
+        self._p_seg.append(seg)
+        self._p_len.append(n)
         if n <= _FEW_SAMPLES:  # a message's few: Python floats beat numpy's per-call cost
             wl = w_a.ravel().tolist()
             dw: list[float] = []
@@ -426,7 +443,7 @@ class _ImuStage:
                 h = tj - t0
                 dw += ((x - p0) / h, (y - p1) / h, (z - p2) / h)
                 t0, p0, p1, p2 = tj, x, y, z
-            self.w_prev = (tl[-1], wl[-3:])
+            self.w_prev = (tl[-1], (wl[-3], wl[-2], wl[-1]))
             self._mq += q_ia.ravel().tolist()
             self._mw += wl
             self._mdw += dw
@@ -435,7 +452,7 @@ class _ImuStage:
             prev_w = np.concatenate((np.array([w0], dtype=np.float64), w_a[:-1]))
             prev_t = np.concatenate(([t0], t[:-1]))
             dwa = (w_a - prev_w) / (t - prev_t)[:, None]
-            self.w_prev = (tl[-1], w_a[-1].tolist())
+            self.w_prev = (tl[-1], tuple(w_a[-1].tolist()))
             k = _MIRROR
             self._mq = q_ia[-k:].ravel().tolist()
             self._mw = w_a[-k:].ravel().tolist()
@@ -445,43 +462,38 @@ class _ImuStage:
 
     def _flush(self) -> None:
         """Move the pending pieces into the buffer: one copy per column group for all."""
-        pieces = self._pieces
-        if not pieces:
+        if not self._p_len:
             return
-        self._pieces = []
         n = len(self.tl) - len(self.buf)
         rows = self.buf.grow(n)
         rows[:, self.T] = self.tl[len(self.tl) - n :]
-        seg = [pc[7] for pc in pieces]
+        seg = self._p_seg
         if seg.count(seg[0]) == len(seg):  # one segment: no per-piece repeat
             rows[:, self.SEG] = seg[0]
         else:
-            rows[:, self.SEG] = np.repeat(seg, [len(pc[0]) for pc in pieces])
-        q_ia, q_is, acc, v, w_a, *_ = zip(*pieces, strict=True)
-        np.concatenate(q_ia, out=rows[:, self.Q : self.Q + 4])
+            rows[:, self.SEG] = np.repeat(seg, self._p_len)
+        np.concatenate(self._p_q, out=rows[:, self.Q : self.Q + 4])
         if self.identity_mount:
             rows[:, self.QS : self.QS + 4] = rows[:, self.Q : self.Q + 4]
         else:
-            np.concatenate(q_is, out=rows[:, self.QS : self.QS + 4])
-        np.concatenate(acc, out=rows[:, self.ACC : self.ACC + 3])
+            np.concatenate(self._p_qs, out=rows[:, self.QS : self.QS + 4])
+        np.concatenate(self._p_acc, out=rows[:, self.ACC : self.ACC + 3])
         if self.p.method == "paper":
-            np.concatenate(v, out=rows[:, self.V : self.V + 3])
+            np.concatenate(self._p_v, out=rows[:, self.V : self.V + 3])  # type: ignore[arg-type]
         else:
             rows[:, self.V : self.V + 3] = 0.0
         w = rows[:, self.W : self.W + 3]
-        np.concatenate(w_a, out=w)
+        np.concatenate(self._p_w, out=w)
         # dω: the same backward difference as _run's (bit-identical), over all pieces at
-        # once; a piece's first sample has the previous row before it, unless it is the
-        # first pending one or starts a segment: then the (t, ω) _run took
+        # once: the row before, or where that is not the previous sample the (t, ω) _run took
         prev_t = np.empty(n)
         prev_t[1:] = rows[:-1, self.T]
         prev_w = np.empty((n, 3))
         prev_w[1:] = w[:-1]
-        j = 0
-        for i, pc in enumerate(pieces):
-            if i == 0 or pc[8]:
-                prev_t[j], prev_w[j] = pc[5], pc[6]
-            j += len(pc[0])
+        for j, t0, w0 in self._p_prev:
+            prev_t[j], prev_w[j] = t0, w0
+        del self._p_q[:], self._p_qs[:], self._p_acc[:], self._p_v[:], self._p_w[:]
+        del self._p_seg[:], self._p_len[:], self._p_prev[:]
         np.divide(
             w - prev_w, (rows[:, self.T] - prev_t)[:, None], out=rows[:, self.DW : self.DW + 3]
         )
