@@ -73,8 +73,9 @@ class CycleJudge:
     previous boundary. Cycles longer than ``max_cycle_s`` are dropped (no verdict). A cycle is
     judged, and returned, by the call in which a sample with ``t >= end`` has been seen; the
     samples are buffered from the earliest cycle start still needed, and at least the last
-    ``history_s`` seconds, so boundaries may arrive late by up to ``history_s`` (e.g. a
-    ``cycle_start`` event received after later robot samples) without changing the verdict.
+    ``max_cycle_s + history_s`` seconds (a cycle still to come may start that early), so
+    boundaries may arrive late by up to ``history_s`` (e.g. a ``cycle_start`` event received
+    after later robot samples) without changing the verdict, however the rows are chunked.
     """
 
     def __init__(
@@ -176,9 +177,11 @@ class CycleJudge:
         self._pending.append((float(start), bt, str(getattr(b, "source", ""))))
 
     def _trim(self) -> None:
-        keep = self._data_t - self.history_s
-        if self._last_b is not None and self._data_t - self._last_b <= self.max_cycle_s:
-            keep = min(keep, self._last_b)
+        # a boundary still to come may open its cycle up to max_cycle_s before it (the first
+        # cycle, or a detector restart's reference time, can lie before the last boundary
+        # seen): keep that much, and history_s more for the boundary's detection delay.
+        # Dropping less than a cycle made a chunked run judge fewer rows than one call.
+        keep = self._data_t - self.history_s - self.max_cycle_s
         for start, _, _ in self._pending:
             keep = min(keep, start)
         buf = self._buf

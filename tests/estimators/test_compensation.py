@@ -482,3 +482,21 @@ def test_chain_classifies_synthetic_cycles():
     warn_cycles = set(np.floor(rel[codes == WARNING]).astype(int).tolist())
     assert warn_cycles == compensatory_cycles
     assert len(eps) == len(compensatory_cycles)
+
+
+def test_chunked_judge_keeps_the_rows_of_a_cycle_opened_long_before():
+    """A first cycle (or one after a detector restart) may open up to ``max_cycle_s`` before
+    its boundary arrives: a chunked judge must still have those rows (it kept only
+    ``history_s``, and judged a 19 s cycle on its last 5 s; found by hypothesis)."""
+    t = 100.0 + 0.04 * np.arange(400)
+    d = np.full(t.size, 0.05)
+    d[50:100] = 0.15  # 2 s outside, early in the cycle
+    codes, _ = Indicator(CompensationParams()).update(t, d)
+    b = Boundary(115.0, 96.0)  # opened 19 s before it ends, 4 s before the data starts
+    whole = CycleJudge(CompensationParams()).update(t, codes, [b], d)
+    judge, chunked = CycleJudge(CompensationParams()), []
+    for a in range(0, t.size, 10):
+        due = [b] if t[a] <= b < t[min(a + 10, t.size) - 1] else []
+        chunked += judge.update(t[a : a + 10], codes[a : a + 10], due, d[a : a + 10])
+    assert len(whole) == 1 and whole[0].outside_s > 1.9
+    assert repr(chunked) == repr(whole)
