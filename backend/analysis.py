@@ -12,9 +12,10 @@ import gc
 import io
 import json
 import math
+import operator
 import zlib
 from collections.abc import Iterable, Iterator, Mapping
-from contextlib import contextmanager, suppress
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from itertools import islice
 from pathlib import Path
@@ -45,10 +46,10 @@ _DET_FMT = "%r,%.6f,%.6f,%.6f,%.6f,%.3f,%.4f,%.3f,%.3f,%.5f,%.5f,%.5f,%.3f,%.5f,
 _Column = np.ndarray | list[str]
 
 
-def _lines(fmt: str, cols: list[_Column]) -> list[str]:
+def _lines(fmt: str, cols: list[_Column], first: list[str] | None = None) -> list[str]:
     """``fmt % row`` per row, NaN as an empty cell ("nan" cannot occur otherwise)."""
     if len(cols[0]) >= _VECTOR_ROWS:
-        return _table_lines(fmt, cols)
+        return _table_lines(fmt, cols, first)
     return _format_rows(fmt, [c.tolist() if isinstance(c, np.ndarray) else c for c in cols])
 
 
@@ -61,25 +62,28 @@ def _format_rows(fmt: str, cols: list[list[Any]]) -> list[str]:
 # Below this many rows (a live poll's one or two) per-row formatting is cheaper than the
 # fixed cost of the column-wise path; both give the same text.
 _VECTOR_ROWS = 64
+_TEXT = ("%r", "%s")  # columns whose cells are Python strings
 
 
-def _table_lines(fmt: str, cols: list[_Column]) -> list[str]:
+def _table_lines(fmt: str, cols: list[_Column], first: list[str] | None = None) -> list[str]:
     """The same text as :func:`_format_rows`, built column by column as ASCII bytes in numpy
-    (an offline analysis formats ~10^4 rows at once; per-row formatting dominated it)."""
+    (an offline analysis formats ~10^4 rows at once; per-row formatting dominated it).
+
+    A text column at either end (both files' t, the state) is added to the lines as
+    strings: as a byte matrix it cost more than all the numeric columns together.
+    ``first``: the first column's :func:`_texts` if made already."""
+    specs = fmt.split(",")
     n = len(cols[0])
+    lo = 1 if specs[0] in _TEXT else 0
+    hi = len(specs) - 1 if len(specs) > 1 and specs[-1] in _TEXT else len(specs)
     parts: list[np.ndarray] = []
     redo = np.zeros(n, dtype=bool)  # rows the shortcut cannot vouch for: formatted per row
-    for spec, col in zip(fmt.split(","), cols, strict=True):
-        if parts:
+    for k in range(lo, hi):
+        if k:
             parts.append(np.full((n, 1), ord(","), np.uint8))
-        if spec == "%r":
-            x = np.asarray(col, dtype=np.float64)
-            text = [repr(v) for v in x.tolist()]
-            for i in np.flatnonzero(np.isnan(x)).tolist():
-                text[i] = ""
-            parts.append(_ascii(text, n))
-        elif spec == "%s":
-            parts.append(_ascii([str(v) for v in col], n))
+        spec, col = specs[k], cols[k]
+        if spec in _TEXT:
+            parts.append(_ascii(_texts(spec, col), n))
         elif spec == "%d":
             cells, bad = _int_cells(np.asarray(col, dtype=np.int64))
             parts.append(cells)
@@ -88,14 +92,33 @@ def _table_lines(fmt: str, cols: list[_Column]) -> list[str]:
             cells, bad = _fixed_cells(np.asarray(col, dtype=np.float64), int(spec[2:-1]))
             parts.append(cells)
             redo |= bad
-    parts.append(np.full((n, 1), ord("\n"), np.uint8))
-    body = np.concatenate(parts, axis=1).tobytes().translate(None, b"\0")  # drop the padding
-    lines = body.decode("ascii").split("\n")
-    lines.pop()  # after the last newline
+    if hi < len(specs):
+        parts.append(np.full((n, 1), ord(","), np.uint8))
+    lines = [""] * n
+    if parts:
+        parts.append(np.full((n, 1), ord("\n"), np.uint8))
+        body = np.concatenate(parts, axis=1).tobytes().translate(None, b"\0")  # no padding
+        lines = body.decode("ascii").split("\n")
+        lines.pop()  # after the last newline
+    if lo:
+        lines = list(map(operator.add, first or _texts(specs[0], cols[0]), lines))
+    if hi < len(specs):
+        lines = list(map(operator.add, lines, _texts(specs[-1], cols[-1])))
     for i in np.flatnonzero(redo).tolist():
         row = tuple(c[i].item() if isinstance(c, np.ndarray) else c[i] for c in cols)
         lines[i] = (fmt % row).replace("nan", "")
     return lines
+
+
+def _texts(spec: str, col: _Column) -> list[str]:
+    """``spec % v`` per value of a text column (NaN: an empty cell for ``%r``)."""
+    if spec == "%s":
+        return list(map(str, col))
+    x = np.asarray(col, dtype=np.float64)
+    text = list(map(repr, x.tolist()))
+    for i in np.flatnonzero(np.isnan(x)).tolist():
+        text[i] = ""
+    return text
 
 
 def _ascii(text: list[str], n: int) -> np.ndarray:
@@ -158,24 +181,27 @@ def _digits(q: np.ndarray, neg: np.ndarray, p: int) -> np.ndarray:
     ip, fp = np.divmod(q, 10**p)
     nd = len(str(int(ip.max()))) if len(ip) else 1
     width = 1 + nd + (1 + p if p else 0)
-    cells = np.zeros((len(q), width), np.uint8)
-    cells[:, 0] = np.where(neg, ord("-"), 0)
+    # built a character position at a time: as rows of its transpose, each write is
+    # contiguous (written as columns, strided, they cost more than the arithmetic)
+    cells = np.zeros((width, len(q)), np.uint8)
+    cells[0] = neg * np.uint8(ord("-"))
     for k in range(nd):  # right to left; the units digit is always written
         r = ip // 10
         d = ip - r * 10 + ord("0")
-        cells[:, nd - k] = d if k == 0 else d * (ip > 0)
+        cells[nd - k] = d if k == 0 else d * (ip > 0)
         ip = r
     if p:
-        cells[:, nd + 1] = ord(".")
+        cells[nd + 1] = ord(".")
         for k in range(p):
             r = fp // 10
-            cells[:, width - 1 - k] = fp - r * 10 + ord("0")
+            cells[width - 1 - k] = fp - r * 10 + ord("0")
             fp = r
-    return cells
+    return cells.T
 
 
-def estimate_lines(rows: Mapping[str, np.ndarray]) -> list[str]:
-    """Rows of ``estimates.csv`` (contract §6); empty cells where no value exists yet."""
+def estimate_lines(rows: Mapping[str, np.ndarray], t: list[str] | None = None) -> list[str]:
+    """Rows of ``estimates.csv`` (contract §6); empty cells where no value exists yet.
+    ``t``: the texts of ``rows["t"]`` if made already (:func:`_texts`)."""
     el, sh = rows["elbow"], rows["shoulder"]
     cols: list[_Column] = [
         rows["t"],
@@ -185,12 +211,13 @@ def estimate_lines(rows: Mapping[str, np.ndarray]) -> list[str]:
         rows["heading_offset_deg"],
         rows["heading_converged"].astype(np.int64),
         rows["shoulder_displacement_m"],
-        [STATE_NAMES[int(s)] for s in rows["state"].tolist()],
+        list(map(STATE_NAMES.__getitem__, rows["state"].tolist())),
     ]
-    return _lines(_EST_FMT, cols)
+    return _lines(_EST_FMT, cols, t)
 
 
-def detail_lines(rows: Mapping[str, np.ndarray]) -> list[str]:
+def detail_lines(rows: Mapping[str, np.ndarray], t: list[str] | None = None) -> list[str]:
+    """Rows of ``details.csv``; ``t`` as for :func:`estimate_lines`."""
     m = np.concatenate(
         [
             rows["t"][:, None],
@@ -206,7 +233,7 @@ def detail_lines(rows: Mapping[str, np.ndarray]) -> list[str]:
         ],
         axis=1,
     )
-    return _lines(_DET_FMT, [m[:, j] for j in range(m.shape[1])])
+    return _lines(_DET_FMT, [m[:, j] for j in range(m.shape[1])], t)
 
 
 def estimate_payload(rows: dict[str, np.ndarray]) -> dict[str, list[Any]]:
@@ -321,8 +348,10 @@ class DeviceRun:
             )
         else:
             rows = concat_rows([RowTable(*p) if isinstance(p, tuple) else p for p in parts])
-        self.est_lines.extend(estimate_lines(rows))
-        self.det_lines.extend(detail_lines(rows))
+        # both files start with t: its texts (a repr per value, their costliest) made once
+        t = _texts("%r", rows["t"]) if len(rows["t"]) >= _VECTOR_ROWS else None
+        self.est_lines.extend(estimate_lines(rows, t))
+        self.det_lines.extend(detail_lines(rows, t))
         for k in _STAT_COLUMNS:  # copies: a view would keep every column of the rows alive
             self._stats.setdefault(k, []).append(np.array(rows[k]))
 
@@ -394,50 +423,28 @@ class DeviceRun:
 
 
 def decode_stream(
-    lines: Iterable[tuple[str | None, Any]], prefix: str = keys.DEFAULT_PREFIX
+    lines: Iterable[bytes], prefix: str = keys.DEFAULT_PREFIX
 ) -> Iterator[tuple[str | None, wire.Message | wire.WireError]]:
-    """Decode recording lines; yield ``(device, message or error)`` (device None if unknown)."""
+    """Decode recording lines (:func:`recording.lines`); yield ``(device, message or
+    error)`` (device None if unknown)."""
     for batch, cols in decode_batches(lines, prefix):
         for dev, item in batch:
             yield dev, item.message(cols) if isinstance(item, wire.Span) else item
 
 
-Decoded = tuple[str | None, wire.Message | wire.WireError | wire.Span]
-
-
 def decode_batches(
-    lines: Iterable[tuple[str | None, Any]], prefix: str = keys.DEFAULT_PREFIX
-) -> Iterator[tuple[list[Decoded], dict[str, wire.Columns]]]:
+    lines: Iterable[bytes], prefix: str = keys.DEFAULT_PREFIX
+) -> Iterator[tuple[list[wire.Decoded], dict[str, wire.Columns]]]:
     """:func:`decode_stream` a batch at a time, stream messages left as spans of the
-    batch's columns (:func:`wire.decode_columns`)."""
+    batch's columns (:func:`wire.decode_lines`)."""
     it = iter(lines)
-    # batches: small, so that few decoded objects are alive at once for the cyclic
-    # collector to scan and promote
+    # batches: a few hundred lines, so that few decoded objects are alive at once for the
+    # cyclic collector to scan and promote (with it on, 256 cost least of 64..1024)
     while chunk := list(islice(it, _DECODE_BATCH)):
-        keyed = [(k, p) for k, p in chunk if k is not None]
-        decoded, cols = wire.decode_columns(keyed, prefix)
-        if len(keyed) < len(chunk):  # lines that are not {key, payload}: errors in place
-            items = iter(decoded)
-            decoded = [
-                next(items) if k is not None else wire.WireError(*wire.MALFORMED_LINE)
-                for k, _ in chunk
-            ]
-        out: list[Decoded] = []
-        for (key, _), item in zip(chunk, decoded, strict=True):
-            if isinstance(item, wire.WireError):
-                dev: str | None = None
-                if key is not None:
-                    with suppress(keys.KeyError_):
-                        dev = keys.parse(key, prefix).device
-                out.append((dev, item))
-            elif isinstance(item, wire.Span):
-                out.append((item.key.device, item))
-            else:
-                out.append((item.device, item))
-        yield out, cols
+        yield wire.decode_lines(chunk, prefix)
 
 
-_DECODE_BATCH = 64
+_DECODE_BATCH = 256
 
 
 @contextmanager
@@ -465,31 +472,35 @@ def analyze(
     progress: bool = False,
 ) -> tuple[DeviceRun, dict[str, Any]]:
     """Run the pipeline over a recording; write the contract's files if ``out_dir``."""
-    lines: Iterable[tuple[str | None, Any]] = recording.read(path)
+    lines: Iterable[bytes] = recording.lines(path)
     if progress:
         from tqdm import tqdm
 
         lines = tqdm(lines, unit=" msg", desc="analyze", mininterval=0.5, leave=False)
     run: DeviceRun | None = None
+    run_dev: str | None = None
     orphan: dict[str, int] = {}
     others: dict[str, int] = {}
+    span, feed_span = wire.Span, _feed_span  # locals: looked up once, not per message
     for batch, cols in decode_batches(lines):
         for dev, item in batch:
-            if run is None and dev is not None and (device is None or dev == device):
-                run = DeviceRun(dev, params)
-            if run is None or dev != run.device:
-                if dev is None:
-                    assert isinstance(item, wire.WireError)
-                    orphan[item.reason] = orphan.get(item.reason, 0) + 1
+            if dev != run_dev or run is None:  # not the run's device (or no run yet)
+                if run is None and dev is not None and (device is None or dev == device):
+                    run = DeviceRun(dev, params)
+                    run_dev, pipeline = dev, run.pipeline
                 else:
-                    others[dev] = others.get(dev, 0) + 1
-                continue
-            if isinstance(item, wire.Span):
-                _feed_span(run.pipeline, item, cols)
+                    if dev is None:
+                        assert isinstance(item, wire.WireError)
+                        orphan[item.reason] = orphan.get(item.reason, 0) + 1
+                    else:
+                        others[dev] = others.get(dev, 0) + 1
+                    continue
+            if type(item) is span:
+                feed_span(pipeline, item, cols)
             elif isinstance(item, wire.WireError):
                 run.reject(item.reason)
             else:
-                run.pipeline.feed(item)
+                pipeline.feed(item)
     if run is None:
         run = DeviceRun(device or "", params)
     for reason, n in orphan.items():
@@ -505,10 +516,11 @@ def analyze(
 
 def _feed_span(p: Pipeline, s: wire.Span, cols: dict[str, wire.Columns]) -> None:
     """``p.feed(s.message(cols))``, without making the message's arrays."""
-    kind = s.key.kind
+    pk = s.key
+    kind = pk.kind
     if kind == "imu":
         k = cols[kind]
-        p.feed_imu_rows(k.t, k.tl, k.a, k.b, s.i0, s.i1, s.seq, s.key.segment or "upperarm")
+        p.feed_imu_rows(k.t, k.tl, k.a, k.b, s.i0, s.i1, s.seq, pk.segment or "upperarm")
     elif kind == "robot":
         k = cols[kind]
         p.feed_robot_rows(k.t, k.tl, k.a, k.b, k.c, s.i0, s.i1, s.seq)

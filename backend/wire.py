@@ -11,21 +11,21 @@ loss) needs per-stream state and lives in :mod:`backend.quality`.
 
 from __future__ import annotations
 
-import array
+import functools
 import json
 import math
 import operator
+import struct
 from collections.abc import Iterable
 from dataclasses import dataclass, field, fields
-from itertools import chain
-from typing import Any, NamedTuple, TypeAlias
+from typing import Any, TypeAlias, get_args
 
 import msgspec
 import numpy as np
 import orjson
 from numpy.typing import NDArray
 
-from backend import keys
+from backend import keys, recording
 
 FloatArray: TypeAlias = NDArray[np.float64]
 
@@ -157,7 +157,7 @@ _DECODERS: dict[str, msgspec.json.Decoder[Any]] = {
     "robot": msgspec.json.Decoder(_Robot),
     "camera": msgspec.json.Decoder(_Camera),
 }
-_CONVERT = {"imu": _Imu, "robot": _Robot, "camera": _Camera}
+_CONVERT: dict[str, type[msgspec.Struct]] = {"imu": _Imu, "robot": _Robot, "camera": _Camera}
 
 
 def _structured(kind: str, payload: bytes | str | dict[str, Any]) -> Any:
@@ -329,9 +329,9 @@ class Columns:
     c: FloatArray | None
 
 
-class Span(NamedTuple):
+class Span(msgspec.Struct, frozen=True, gc=False):
     """A validated stream message as rows ``i0:i1`` of its kind's :class:`Columns` (a
-    tuple: a frozen dataclass's ``__init__`` cost more than decoding the message)."""
+    struct: its C ``__init__`` costs a fraction of a NamedTuple's or a dataclass's)."""
 
     key: keys.ParsedKey
     seq: int | None
@@ -353,39 +353,121 @@ class Span(NamedTuple):
         )
 
 
+Decoded: TypeAlias = tuple[str | None, Message | WireError | Span]
+"""A decoded item and its device (None if its key has none)."""
+
+
+def _without_none(tp: Any) -> Any:
+    """``T`` of ``T | None``; any other type as it is."""
+    args = get_args(tp)
+    if type(None) not in args:
+        return tp
+    return functools.reduce(operator.or_, (a for a in args if a is not type(None)))
+
+
+def _any_stream() -> Any:
+    """Every stream payload's fields in one struct, each optional, each of its type there."""
+    types: dict[str, Any] = {}
+    for cls in _CONVERT.values():
+        for f in msgspec.structs.fields(cls):
+            if types.setdefault(f.name, _without_none(f.type)) != _without_none(f.type):
+                raise TypeError(f"{f.name!r} has another type in another stream payload")
+    return msgspec.defstruct(
+        "_AnyStream", [(name, tp | None, None) for name, tp in types.items()], gc=False
+    )
+
+
+# A recording line (recording._Line's envelope) and its stream payload in one decode: apart,
+# the payload's text was scanned twice. It accepts no more than the kind's own decoder: each
+# field has the type it has there, a field of another kind (ignored there) must decode too,
+# and a field the kind requires must be there (_REQUIRED). Any other line takes the general
+# path: recording.parse, then what decode does.
+_RECORDED: msgspec.json.Decoder[Any] = msgspec.json.Decoder(
+    msgspec.defstruct(
+        "_Recorded",
+        [
+            (f.name, _any_stream() if f.type is msgspec.Raw else f.type)
+            for f in msgspec.structs.fields(recording._Line)
+        ],
+        gc=False,
+    )
+)
+_REQUIRED = {
+    kind: operator.attrgetter(*(f.name for f in msgspec.structs.fields(cls) if f.required))
+    for kind, cls in _CONVERT.items()
+}
+# per prefix: stream key -> its ParsedKey
+_STREAM_KEYS: dict[str, dict[str, keys.ParsedKey]] = {}
 _NAN3 = (math.nan, math.nan, math.nan)
+
+
+def decode_lines(
+    lines: Iterable[bytes], prefix: str = keys.DEFAULT_PREFIX
+) -> tuple[list[Decoded], dict[str, Columns]]:
+    """Recording lines (:func:`backend.recording.lines`) as :func:`decode` of what
+    :func:`backend.recording.parse` gives for each, the error returned instead of raised (a
+    line that is no ``{key, payload}``: ``malformed_line``), and every valid stream payload
+    left as a :class:`Span` of its kind's columns. With each item its device."""
+    return _decode_items(lines, prefix)
 
 
 def decode_columns(
     items: Iterable[tuple[str, Any]], prefix: str = keys.DEFAULT_PREFIX
 ) -> tuple[list[Message | WireError | Span], dict[str, Columns]]:
     """:func:`decode` of each ``(key, payload)``, the error returned instead of raised, and
-    every valid stream payload (JSON bytes) left as a :class:`Span` of its kind's columns.
+    every valid stream payload (JSON bytes) left as a :class:`Span` of its kind's columns."""
+    out, cols = _decode_items(items, prefix)
+    return [x for _, x in out], cols
 
-    The columns come from a few numpy calls per kind: per-message array construction
+
+def _decode_items(
+    items: Iterable[bytes | tuple[str, Any]], prefix: str
+) -> tuple[list[Decoded], dict[str, Columns]]:
+    """:func:`decode_lines` of lines, :func:`decode_columns` of ``(key, payload)`` pairs.
+
+    The columns come from a few calls per kind and batch: per-message array construction
     dominated an offline analysis.
     """
-    out: list[Message | WireError | Span] = []
+    out: list[Decoded] = []
     # per kind: every accepted message's t, concatenated, and its rows of a, b and c
     acc: dict[str, tuple[list[float], list[Vec3], list[Vec3], list[Vec3]]] = {}
-    for key, payload in items:
+    streams = _STREAM_KEYS.setdefault(prefix, {})
+    limit = MAX_PAYLOAD_BYTES  # the payload is shorter than its line
+    for item in items:
+        pk: keys.ParsedKey | None = None
+        if type(item) is bytes and len(item) <= limit:
+            try:
+                rec = _RECORDED.decode(item)
+            except (msgspec.DecodeError, msgspec.ValidationError):
+                pass
+            else:
+                pk = streams.get(rec.key) or _stream_key(rec.key, prefix)
+                p = rec.payload
+                # all(): not None (nor an empty list: rejected on the general path)
+                if pk is not None and not all(_REQUIRED[pk.kind](p)):
+                    pk = None
         try:
-            pk = keys.parse(key, prefix)
-            kind = pk.kind
-            if kind not in _STREAMS or isinstance(payload, (dict, str)):
-                out.append(decode(key, payload, prefix))
-                continue
-            p = _structured(kind, payload)
-            t, a, b, c = _validate(kind, p, True)
-        except keys.KeyError_ as exc:
-            out.append(WireError("unknown_key", str(exc)))
-            continue
+            if pk is None:  # the general path
+                key, payload = recording.parse(item) if isinstance(item, bytes) else item
+                if key is None:
+                    out.append((None, WireError(*MALFORMED_LINE)))
+                    continue
+                try:
+                    pk = keys.parse(key, prefix)
+                except keys.KeyError_ as exc:
+                    out.append((None, WireError("unknown_key", str(exc))))
+                    continue
+                if pk.kind not in _STREAMS or isinstance(payload, (dict, str)):
+                    out.append((pk.device, decode(key, payload, prefix)))
+                    continue
+                p = _structured(pk.kind, payload)
+            t, a, b, c = _validate(pk.kind, p, True)
         except WireError as exc:
             # returned, not raised: without its traceback, whose frames (this one and its
             # lists) would otherwise wait for the cyclic collector
-            out.append(exc.with_traceback(None))
+            out.append((pk.device if pk is not None else None, exc.with_traceback(None)))
             continue
-        ts, ra, rb, rc = acc.get(kind) or acc.setdefault(kind, ([], [], [], []))
+        ts, ra, rb, rc = acc.get(pk.kind) or acc.setdefault(pk.kind, ([], [], [], []))
         i0 = len(ts)
         ts += t
         ra += a
@@ -395,21 +477,42 @@ def decode_columns(
             rc += c
         elif rc:  # aligned from the first message with one on
             rc += [_NAN3] * len(t)
-        out.append(Span(pk, p.seq, i0, len(ts), c is not None))
+        out.append((pk.device, Span(pk, p.seq, i0, len(ts), c is not None)))
     cols: dict[str, Columns] = {}
     for name, (ts, ra, rb, rc) in acc.items():
         n = len(ts)
         if rc:
             rc += [_NAN3] * (n - len(rc))
+        t_col = np.empty(n, dtype=np.float64)
+        struct.pack_into(f"{n}d", t_col.data, 0, *ts)
         cols[name] = Columns(
-            # from flat doubles: numpy's conversion of nested sequences costs ~3x more
-            np.frombuffer(array.array("d", ts), dtype=np.float64),
-            ts,
-            np.fromiter(chain.from_iterable(ra), np.float64, 3 * n).reshape(n, 3),
-            np.fromiter(chain.from_iterable(rb), np.float64, 3 * n).reshape(n, 3),
-            np.fromiter(chain.from_iterable(rc), np.float64, 3 * n).reshape(n, 3) if rc else None,
+            t_col, ts, _rows_array(ra), _rows_array(rb), _rows_array(rc) if rc else None
         )
     return out, cols
+
+
+def _stream_key(key: str, prefix: str) -> keys.ParsedKey | None:
+    """The key's ParsedKey if it is a stream's (remembered), else None."""
+    try:
+        pk = keys.parse(key, prefix)
+    except keys.KeyError_:
+        return None
+    if pk.kind not in _STREAMS:
+        return None
+    known = _STREAM_KEYS[prefix]
+    if len(known) < 4096:  # as many as keys.parse remembers
+        known[key] = pk
+    return pk
+
+
+def _rows_array(rows: list[Vec3]) -> FloatArray:
+    """(N,3) rows as an array: flattened, then packed as doubles (half the cost of numpy's
+    conversion from an iterator, a quarter of that from nested sequences)."""
+    out = np.empty((len(rows), 3), dtype=np.float64)
+    struct.pack_into(
+        f"{3 * len(rows)}d", out.data, 0, *functools.reduce(operator.iconcat, rows, [])
+    )
+    return out
 
 
 def decode_many(

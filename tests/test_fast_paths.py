@@ -112,8 +112,10 @@ FAULTS = [
     "t_reversed", "t_repeated", "t_empty", "t_string", "row_short", "row_string", "rows_extra",
     "field_missing", "field_null", "optional_null", "seq_negative", "seq_huge", "seq_float",
     "extra_field", "spaces", "duplicate_bad_first", "duplicate_good_first", "nan", "cut",
-    "not_object",
+    "not_object", "foreign_field", "foreign_bad", "foreign_null",
 ]  # fmt: skip
+# another stream kind's field: ignored by this kind's decoder, whatever it holds
+FOREIGN = {"imu": "wrist", "robot": "gyr", "camera": "acc"}
 
 
 @st.composite
@@ -158,6 +160,12 @@ def stream_payload(draw: st.DrawFn, key: str, n: int) -> bytes:
         p["seq"] = 1.5
     elif fault == "extra_field":
         p["mag"] = [[1, 2, 3]] * n
+    elif fault == "foreign_field":
+        p[FOREIGN[key.split("/")[2]]] = [[1.0, 2.0, 3.0]] * (n + 1)
+    elif fault == "foreign_bad":
+        p[FOREIGN[key.split("/")[2]]] = [[1.0, "x"]]
+    elif fault == "foreign_null":
+        p[FOREIGN[key.split("/")[2]]] = None
     raw = json.dumps(p, separators=(",", ":")).encode()
     if fault == "spaces":
         raw = json.dumps(p).encode()
@@ -252,7 +260,7 @@ def recording_lines(draw: st.DrawFn) -> list[bytes]:
     """Lines as the recorder writes them, and some that it does not."""
     lines = []
     for key, payload in draw(batches()):
-        form = draw(st.integers(0, 9))
+        form = draw(st.integers(0, 12))
         if form == 0:
             lines.append(draw(st.sampled_from(JUNK_LINES)))
         head = b'{"key":' + json.dumps(key).encode() + b',"payload":'
@@ -263,19 +271,53 @@ def recording_lines(draw: st.DrawFn) -> list[bytes]:
             head = b'{ "key" : ' + json.dumps(key).encode() + b', "payload" : '
         elif form == 3:  # the payload twice
             head = head + b'{"t":"x"},"payload":'
+        elif form == 5:  # the payload twice, the first one valid
+            head = head + b'{"t":[0.5],"wrist":[[0,0,1]],"proximal":[[0,0,0]]},"payload":'
+        elif form == 6:  # escaped
+            head = b'{"key":' + json.dumps(key).replace("/", "\\/").encode() + b',"payload":'
+        elif form == 7:  # the key last
+            lines.append(b'{"payload":' + payload + b',"key":' + json.dumps(key).encode() + b"}")
+            continue
         lines.append(head + payload + (b"}\r" if form == 4 else b"}"))
     return lines
 
 
-@settings(max_examples=150, deadline=None)
-@given(recording_lines(), st.sampled_from([1, 5, analysis._DECODE_BATCH]))
-def test_decode_stream_is_line_by_line(raw_lines: list[bytes], batch: int) -> None:
-    lines = [_parse(line) for line in raw_lines if line and not line.isspace()]
+@settings(max_examples=200, deadline=None)
+@given(recording_lines(), st.sampled_from([1, 5, analysis._DECODE_BATCH]), st.booleans())
+def test_decode_stream_is_line_by_line(raw_lines: list[bytes], batch: int, small: bool) -> None:
+    """Lines decoded with their payloads in one go, or line by line: key and payload, then
+    the payload with decode."""
+    lines = [line for line in raw_lines if line and not line.isspace()]
     old, analysis._DECODE_BATCH = analysis._DECODE_BATCH, batch
+    limit = wire.MAX_PAYLOAD_BYTES
+    if small:  # lines over the size limit, some with payloads under it
+        wire.MAX_PAYLOAD_BYTES = 100
     try:
-        assert _outcomes(analysis.decode_stream(lines)) == _reference(lines)
+        expected = _reference([_parse(line) for line in lines])
+        assert _outcomes(analysis.decode_stream(lines)) == expected
     finally:
         analysis._DECODE_BATCH = old
+        wire.MAX_PAYLOAD_BYTES = limit
+
+
+def test_stream_lines_are_decoded_in_one_pass(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A valid stream line is decoded with its payload at once, not parsed first (the
+    general path: events, faults); the results are the same either way (tests above)."""
+    parsed: list[bytes] = []
+    parse = recording.parse
+    monkeypatch.setattr(recording, "parse", lambda line: parsed.append(line) or parse(line))
+    rows = [[0.1, 0.2, 0.3], [0.0, 0.0, 1.0]]
+    payloads = [
+        ("rehab/d/imu/upperarm", {"t": [0.0, 0.01], "gyr": rows, "acc": rows, "seq": 0}),
+        ("rehab/d/robot", {"t": [0.0], "wrist": rows[:1], "proximal": rows[1:]}),
+        ("rehab/d/robot", {"t": [1.0], "wrist": rows[:1], "proximal": rows[1:], "elbow": None}),
+        ("rehab/d/camera", {"t": [0.0], "elbow": rows[:1], "wrist": rows[1:], "mag": 1}),
+    ]
+    event = ("rehab/d/event", {"t": 1.0, "type": "cycle_start"})
+    lines = [json.dumps({"key": k, "payload": p}).encode() for k, p in [*payloads, event]]
+    out, _ = wire.decode_lines(lines)
+    assert [type(x).__name__ for _, x in out] == ["Span"] * 4 + ["EventMessage"]
+    assert parsed == lines[-1:]
 
 
 def test_decode_stream_of_a_recording_is_line_by_line(tmp_path: Path) -> None:
@@ -305,16 +347,26 @@ def test_decode_stream_of_a_recording_is_line_by_line(tmp_path: Path) -> None:
     path.write_bytes(gzip.compress(b"\n".join(data), mtime=0))
     lines = gzip.decompress(path.read_bytes()).split(b"\n")
     expected = _reference([_parse(line) for line in lines if line and not line.isspace()])
-    assert _outcomes(analysis.decode_stream(recording.read(path))) == expected
+    assert _outcomes(analysis.decode_stream(recording.lines(path))) == expected
 
 
 SPECIAL = [0.0, -0.0, 0.5, -0.5, 2.5, 1 / 64, -3 / 128, 0.0005, 2.0005, 0.301475, -0.234775]
 SPECIAL += [9.9999995, 999.9995, 1e15, 1e17, 1e300, 5e-324, math.inf, -math.inf, math.nan]
 
 
+FORMATS = [
+    analysis._DET_FMT + ",%d,%s,%.0f,%.1f",  # text columns first and in the middle
+    analysis._EST_FMT,  # first and last
+    "%s,%.2f,%r",
+    "%.3f,%d",  # none
+    "%r",
+    "%s,%r",
+]
+
+
 @settings(max_examples=40, deadline=None)
-@given(st.integers(0, 2**32 - 1))
-def test_column_formatter_is_percent_per_row(seed: int) -> None:
+@given(st.integers(0, 2**32 - 1), st.sampled_from(FORMATS))
+def test_column_formatter_is_percent_per_row(seed: int, fmt: str) -> None:
     rng = np.random.default_rng(seed)
     n = 3 * analysis._VECTOR_ROWS
     pool = np.concatenate(
@@ -325,7 +377,6 @@ def test_column_formatter_is_percent_per_row(seed: int) -> None:
             SPECIAL,
         ]
     )
-    fmt = analysis._DET_FMT + ",%d,%s,%.0f,%.1f"
     cols: list[Any] = []
     for spec in fmt.split(","):
         if spec == "%d":
@@ -338,6 +389,9 @@ def test_column_formatter_is_percent_per_row(seed: int) -> None:
         fmt, [c.tolist() if isinstance(c, np.ndarray) else c for c in cols]
     )
     assert analysis._table_lines(fmt, cols) == expected
+    head = fmt.split(",")[0]
+    if head in ("%r", "%s"):  # the first column's texts made beforehand (both files' t)
+        assert analysis._table_lines(fmt, cols, analysis._texts(head, cols[0])) == expected
 
 
 def _line_reader(path: Path) -> tuple[list[tuple[str | None, Any]], str | None]:
