@@ -184,17 +184,20 @@ def _motion_subwindows(
 ) -> int:
     """:func:`motion_subwindows` on the window's arrays (``all_valid`` from :func:`_all_true`).
 
-    The valid samples of all sub-windows are taken in one copy (none if all are valid), the
-    distances and maxima in one call each. What sets the bits stays as it was: one
-    ``np.add.reduce`` per centroid (what ``.mean`` runs; ``np.add.reduceat`` adds in another
-    order) and ``einsum`` for the squared distances (its per-row order is not ``x²+y²+z²``).
+    The sub-windows' valid samples go side by side into one (k, m, 3) block padded with −0.0
+    (``x + (−0.0)`` is ``x`` for every x), so each numpy step runs once for all of them, and
+    sample-innermost. What sets the bits stays as it was: a centroid is the row-after-row
+    sum ``np.add.reduce(p_i, axis=0)`` (``.mean``) runs, which ``np.add.accumulate`` along
+    the samples ends on (``np.add.reduceat`` would add in another order), and ``einsum``
+    gives the squared distances (its per-row order is not ``x²+y²+z²``).
     """
     sub = params.window_s / params.n_subwindows
-    edges = t_end - params.window_s + sub * np.arange(params.n_subwindows + 1)
-    idx = np.searchsorted(t, edges, side="right")
+    # t_end − window_s + sub·i as numpy's arange arithmetic computes it, in Python floats
+    start = t_end - params.window_s
+    idx = t.searchsorted([start + sub * i for i in range(params.n_subwindows + 1)], side="right")
     lo, hi = int(idx[0]), int(idx[-1])
     if all_valid:
-        p = np.ascontiguousarray(pos[lo:hi])
+        p = pos[lo:hi]
         bounds: list[int] = (idx - lo).tolist()
     else:
         v = valid[lo:hi]
@@ -202,28 +205,28 @@ def _motion_subwindows(
         csum = np.zeros(hi - lo + 1, dtype=np.intp)
         np.cumsum(v, out=csum[1:])
         bounds = csum[idx - lo].tolist()  # valid samples before each edge
-    starts: list[int] = []
-    sizes: list[int] = []
-    centroids: list[Array] = []
-    for i in range(params.n_subwindows):
-        i0, m = bounds[i], bounds[i + 1] - bounds[i]
-        if m < 2:
-            continue
-        starts.append(i0)
-        sizes.append(m)
-        centroids.append(np.add.reduce(p[i0 : i0 + m], axis=0) / m)  # = .mean(axis=0)
-    if not sizes:
+    spans = [(i0, i1) for i0, i1 in itertools.pairwise(bounds) if i1 - i0 >= 2]
+    if not spans:
         return 0
-    if len(sizes) == params.n_subwindows:
-        pts = p[: bounds[-1]]  # the sub-windows tile the range
-    else:
-        pts = np.concatenate([p[s : s + m] for s, m in zip(starts, sizes, strict=True)])
-    q = pts - np.repeat(np.asarray(centroids), sizes, axis=0)
-    d2 = np.einsum("ij,ij->i", q, q)
+    sizes = [i1 - i0 for i0, i1 in spans]
+    k, m = len(spans), max(sizes)
+    block = np.full((k, m, 3), -0.0)
+    for i, (i0, i1) in enumerate(spans):
+        block[i, : i1 - i0] = p[i0:i1]
+    by_axis = block.transpose(2, 0, 1)  # (3, k, m) views, samples innermost
+    sums = np.add.accumulate(by_axis, axis=2)[:, :, -1]
+    centroids = sums / np.array(sizes, dtype=np.float64)  # (3, k), = .mean(axis=0)
+    q = np.empty_like(block)
+    np.subtract(by_axis, centroids[:, :, None], out=q.transpose(2, 0, 1), order="C")
+    for i, size in enumerate(sizes):
+        if size < m:
+            q[i, size:] = 0.0  # the padding spreads nothing
+    q2 = q.reshape(-1, 3)
+    d2 = np.einsum("ij,ij->i", q2, q2).reshape(k, m)
     limit = 0.25 * params.motion_diameter_m * params.motion_diameter_m  # radius², m²
-    # the largest per sub-window (exact and NaN-propagating, like ndarray.max)
-    first = list(itertools.accumulate(sizes[:-1], initial=0))
-    return int(np.count_nonzero(np.maximum.reduceat(d2, first) > limit))
+    # the largest per sub-window (exact and NaN-propagating, like ndarray.max; the padding's
+    # zeros cannot exceed a largest squared distance)
+    return int(np.count_nonzero(np.maximum.reduce(d2, axis=1) > limit))
 
 
 def _grid(center: float, half: float, step: float) -> Array:
@@ -275,15 +278,16 @@ def fit_drift(
     Maximises ``κ Σ (S_c,k cos e_k + S_s,k sin e_k) − (ρ − ρ_prior)² / 2σ_ρ²`` with
     ``e_k = δ0 + ρ τ_k`` by Newton steps, where κ turns the cost into a log-likelihood
     (residual variance per sample, corrected for the low-pass's sample correlation).
-    Returns ``(δ0, ρ, std δ0, std ρ)`` in rad and rad/s.
+    ``a``, ``b`` (n, 3) m/s², ``tau`` (n,) s. Returns ``(δ0, ρ, std δ0, std ρ)`` in rad and
+    rad/s.
     """
-    sck = a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]
-    ssk = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
-    n = len(sck)
+    n = len(a)
+    work = _DriftWork(a, b)
     # Constant-heading solution on data de-rotated by the prior drift: the starting point.
-    c0, s0 = np.cos(rate0 * tau), np.sin(rate0 * tau)
-    d0 = math.atan2(float(np.sum(ssk * c0 - sck * s0)), float(np.sum(sck * c0 + ssk * s0)))
-    e2 = float(np.sum(a[:, :2] ** 2) + np.sum(b[:, :2] ** 2))
+    np.multiply(rate0, tau, out=work.e)  # all ±0 before convergence (no prior drift)
+    sc0, ss0 = work.alignment(maybe_zero=rate0 == 0.0)  # Σ S_c cos + S_s sin, Σ S_s cos − S_c sin
+    d0 = math.atan2(ss0, sc0)
+    e2 = work.horizontal_energy(a, b)
     span = float(tau[-1] - tau[0]) if n > 1 else 0.0
     n_eff = max(1.0, span * params.effective_rate_hz)
     sig_rho = math.radians(params.drift_prior_std_dps)
@@ -292,17 +296,16 @@ def fit_drift(
     # the 2x2 Newton system in closed form (numpy's linalg costs ~10 µs a call at this size)
     h00 = h01 = h11 = det = 0.0
     for _ in range(n_iter):
-        e = d + r * tau
-        ce, se = np.cos(e), np.sin(e)
-        f = sck * ce + ssk * se  # per-sample alignment
-        g = ssk * ce - sck * se  # its derivative wrt e
-        sf = float(f.sum())
+        np.multiply(r, tau, out=work.e)
+        np.add(d, work.e, out=work.e)  # e = d + r τ
+        sf, sg, sft = work.alignment(tau)  # f: alignment, g: its derivative wrt e
         resid = max(e2 - 2.0 * sf, 1e-12)
         kappa = n_eff / n / (resid / (2.0 * n))
-        ft = f * tau
-        g0 = kappa * float(g.sum())
-        g1 = kappa * float(g @ tau) - (r - rate0) * inv_prior
-        h00, h01, h11 = kappa * sf, kappa * float(ft.sum()), kappa * float(ft @ tau) + inv_prior
+        g0 = kappa * sg
+        # ndarray.dot: the BLAS ddot of ``g @ tau``, with less wrapping around it
+        g1 = kappa * float(work.g.dot(tau)) - (r - rate0) * inv_prior
+        h00, h01 = kappa * sf, kappa * sft
+        h11 = kappa * float(work.ft.dot(tau)) + inv_prior
         det = h00 * h11 - h01 * h01
         if not (math.isfinite(det) and det > 0.0):
             break
@@ -313,6 +316,84 @@ def fit_drift(
     else:
         sd, sr = math.inf, sig_rho
     return wrap(d), r, sd, sr
+
+
+class _DriftWork:
+    """:func:`fit_drift`'s per-sample terms for n samples: work arrays allocated once per fit,
+    and the row views the Newton steps use made once (a numpy view costs about what an
+    arithmetic call on 1000 samples does). Every operation runs on 1-D rows: numpy copies
+    small non-contiguous multi-dimensional operands through buffers, which costs more.
+
+    Every term is the same products and sums as written out sample by sample, and every
+    sum a row's pairwise sum, as ``.sum()`` adds it.
+    """
+
+    def __init__(self, a: Array, b: Array) -> None:
+        n = len(a)
+        ax, ay, bx, by = a[:, 0], a[:, 1], b[:, 0], b[:, 1]
+        # coef (2, 2, n): [[S_c,k, S_s,k], [S_s,k, S_c,k]] of the cost's per-sample sinusoids
+        coef = np.empty((2, 2, n))
+        prod = np.empty((2, 2, n))  # [[S_c cos, S_s sin], [S_s cos, S_c sin]] later
+        self.p0: Array = prod[0]
+        self.p1: Array = prod[1]
+        self.p00, self.p01 = prod[0, 0], prod[0, 1]
+        self.p10, self.p11 = prod[1, 0], prod[1, 1]
+        np.multiply(ax, bx, out=self.p00)
+        np.multiply(ay, by, out=self.p01)
+        np.add(self.p00, self.p01, out=coef[0, 0])  # S_c,k = a_x b_x + a_y b_y
+        np.multiply(ax, by, out=self.p00)
+        np.multiply(ay, bx, out=self.p01)
+        np.subtract(self.p00, self.p01, out=coef[0, 1])  # S_s,k = a_x b_y − a_y b_x
+        coef[1] = coef[0, ::-1]
+        self.c0: Array = coef[0]
+        self.c1: Array = coef[1]
+        self.e: Array = np.empty(n)  # angle, rad
+        self.cs: Array = np.empty((2, n))
+        self.cos: Array = self.cs[0]
+        self.sin: Array = self.cs[1]
+        self.fg: Array = np.empty((3, n))  # f, g, f τ
+        self.fg2: Array = self.fg[:2]
+        self.f: Array = self.fg[0]
+        self.g: Array = self.fg[1]
+        self.ft: Array = self.fg[2]
+
+    def alignment(self, tau: Array | None = None, maybe_zero: bool = False) -> list[float]:
+        """Sums of ``f_k = S_c,k cos e_k + S_s,k sin e_k``, ``g_k = S_s,k cos e_k − S_c,k sin
+        e_k`` (and of ``f_k τ_k`` if ``tau`` is given) at the angles in ``e``; the terms stay
+        in ``f``, ``g``, ``ft``. ``maybe_zero``: first look whether every angle is ±0."""
+        if maybe_zero and not self.e.any():
+            # cos ±0 is 1 and sin ±0 is ±0 exactly (C99 Annex F): libm's values, no calls
+            self.cos.fill(1.0)
+            np.copyto(self.sin, self.e)
+        else:
+            np.cos(self.e, out=self.cos)
+            np.sin(self.e, out=self.sin)
+        np.multiply(self.c0, self.cs, out=self.p0)  # (2, n) halves: contiguous, one loop each
+        np.multiply(self.c1, self.cs, out=self.p1)
+        np.add(self.p00, self.p01, out=self.f)
+        np.subtract(self.p10, self.p11, out=self.g)
+        if tau is None:
+            sums: list[float] = np.add.reduce(self.fg2, axis=1).tolist()
+        else:
+            np.multiply(self.f, tau, out=self.ft)
+            sums = np.add.reduce(self.fg, axis=1).tolist()
+        return sums
+
+    @staticmethod
+    def horizontal_energy(a: Array, b: Array) -> float:
+        """``float(np.sum(a[:, :2] ** 2) + np.sum(b[:, :2] ** 2))``: numpy's pairwise sums over
+        the squares in their memory order, which for row-major arrays is sample-major."""
+        n = len(a)
+        if not all(n < 2 or x.strides[0] >= x.strides[1] > 0 for x in (a, b)):
+            # e.g. column-major: the squares (and their sum) would be ordered by column
+            return float(np.sum(a[:, :2] ** 2) + np.sum(b[:, :2] ** 2))
+        sq = np.empty((2, n, 2))
+        for x, out in ((a, sq[0]), (b, sq[1])):
+            np.square(x[:, 0], out=out[:, 0])
+            np.square(x[:, 1], out=out[:, 1])
+        sa, sb = np.add.reduce(sq.reshape(2, 2 * n), axis=1).tolist()
+        total: float = sa + sb
+        return total
 
 
 def estimate_lag(w: Window, params: HeadingParams, dt: float) -> tuple[float, float]:
@@ -344,9 +425,14 @@ def _estimate_lag(
     ti = t[inner]
     # a at t − lag paired with b at t (robot late by lag), every lag in one call
     s = (ti[None, :] - lags[:, None]).ravel()
-    dz = np.interp(s, t, a[:, 2]).reshape(len(lags), -1) - b[inner, 2]
-    dh = np.interp(s, t, ah).reshape(len(lags), -1) - bh[inner]
-    costs = np.sum(dz * dz + dh * dh, axis=1)
+    dz = np.interp(s, t, a[:, 2]).reshape(len(lags), -1)
+    dh = np.interp(s, t, ah).reshape(len(lags), -1)
+    # Σ (dz² + dh²) per lag, the same operations in place (no temporaries of L × m)
+    np.subtract(dz, b[:, 2][inner], out=dz)  # the values of b[inner, 2], gathered cheaper
+    np.subtract(dh, bh[inner], out=dh)
+    np.multiply(dz, dz, out=dz)
+    np.multiply(dh, dh, out=dh)
+    costs = np.add.reduce(np.add(dz, dh, out=dz), axis=1)
     k = int(np.argmin(costs))
     if k == 0 or k == len(lags) - 1:
         return 0.0, 0.0
@@ -363,7 +449,7 @@ def _fit_with_sensor_errors(
     a: Array,
     b: Array,
     tau: Array,
-    cl: Array,
+    jac: Array,
     rate0: float,
     params: HeadingParams,
 ) -> tuple[float, float, float]:
@@ -373,10 +459,10 @@ def _fit_with_sensor_errors(
     sensor axes in I, high-passed like the 6D filter's levelling), and an error Δr of the
     assumed IMU→elbow vector as ``Σ_j Δr_j c̈_j(t)``; both are linear in their unknowns once
     δ(t) is fixed, so the fit alternates the drift fit with a regularised least squares.
-    Returns ``(δ0, ρ, std δ0)``; the fitted errors go to ``state``.
+    ``jac`` (3n, 6) is their :func:`_jacobian`. Returns ``(δ0, ρ, std δ0)``; the fitted
+    errors go to ``state``.
     """
     n = len(a)
-    jac = _jacobian(cl)
     jtj = jac.T @ jac
     prior = _prior_diag(params.acc_bias_prior, params.lever_prior)
     x = np.concatenate((state.acc_bias, state.lever_error))
@@ -389,12 +475,33 @@ def _fit_with_sensor_errors(
         ac = a + jx.reshape(n, 3)
         d0, rate, sd, _ = fit_drift(ac, b, tau, rate0, params, n_iter=3)
         # residual in frame I: Rz(−δ_k) b_k − a_k = jac_k x + noise
-        y = (_rotate_z(-(d0 + rate * tau), b) - a).reshape(-1)
+        y = _derotated_residual(d0, rate, tau, a, b).reshape(-1)
         r = y - jx
         var = max(float(r @ r) / (3 * n), 1e-8) * n / n_eff
         x = np.asarray(np.linalg.solve(jtj / var + prior, (jac.T @ y) / var), np.float64)
     state.acc_bias, state.lever_error = x[:3].copy(), x[3:].copy()
     return d0, rate, sd
+
+
+def _derotated_residual(d0: float, rate: float, tau: Array, a: Array, b: Array) -> Array:
+    """(n, 3) ``Rz(−(d0 + ρ τ_k)) b_k − a_k`` (m/s²; ``d0`` rad, ``rate`` rad/s, ``tau`` (n,)
+    s): with ``δ = −(d0 + ρ τ)``, ``(cos δ b_x − sin δ b_y, sin δ b_x + cos δ b_y, b_z) − a``,
+    those operations in that order, written into one array (not three columns, a stack and
+    a difference)."""
+    n = len(b)
+    ang = np.multiply(rate, tau)
+    np.add(d0, ang, out=ang)
+    np.negative(ang, out=ang)
+    c, s = np.cos(ang), np.sin(ang)
+    bx, by = b[:, 0], b[:, 1]
+    out = np.empty((n, 3))
+    tmp = np.empty(n)
+    # 1-D operations (small multi-dimensional views make numpy copy through buffers)
+    np.subtract(np.multiply(c, bx, out=ang), np.multiply(s, by, out=tmp), out=out[:, 0])
+    np.add(np.multiply(s, bx, out=ang), np.multiply(c, by, out=tmp), out=out[:, 1])
+    out[:, 2] = b[:, 2]
+    np.subtract(out, a, out=out)
+    return out
 
 
 @functools.lru_cache(maxsize=8)
@@ -406,28 +513,38 @@ def _prior_diag(acc_bias_prior: float, lever_prior: float) -> Array:
     return out
 
 
+# cl's columns (x, y, z in I of the three sensor axes, then of their 2nd derivatives) in the
+# order of a Jacobian row: for each of x, y, z the three axes, then their 2nd derivatives
+_JAC_COLUMNS = np.array([3 * j + i for i in range(3) for j in range(6)], dtype=np.intp)
+
+
 def _jacobian(cl: Array) -> Array:
     """(3n, 6): how the accelerometer bias and the lever error enter the elbow acceleration,
-    ``a_true ≈ a + jac · [β, Δr]``, rows sample-major (x, y, z of each sample)."""
+    ``a_true ≈ a + jac · [β, Δr]``, rows sample-major (x, y, z of each sample), from ``cl``
+    (n, 18); ``np.concatenate((-c, ldd), axis=2)`` of its halves as (n, 3, 3), transposed."""
     n = len(cl)
-    # np.concatenate((-c, ldd), axis=2) with c, ldd = cl[:, :9], cl[:, 9:] as (n, 3, 3)
-    # transposed, written in place and iterated sample-innermost (order="C" on (3, 6, n)
-    # views): numpy's default order runs 3-element inner loops, 3n of them per copy.
-    out = np.empty((n, 3, 6), dtype=np.result_type(cl))
-    dst = out.transpose(1, 2, 0)
-    np.negative(cl[:, :9].reshape(n, 3, 3).transpose(2, 1, 0), out=dst[:, :3], order="C")
-    np.positive(cl[:, 9:].reshape(n, 3, 3).transpose(2, 1, 0), out=dst[:, 3:], order="C")
-    jac: Array = out.reshape(3 * n, 6)
+    # cl[:, columns] gathers column by column into an (18, n) layout, where the nine of c
+    # are three contiguous blocks to negate; one transposing copy then makes it sample-major.
+    # (Copies between the (n, 3, 6) and (n, 3, 3) layouts run 3-element inner loops.)
+    by_column = cl[:, _JAC_COLUMNS].T.reshape(3, 6 * n)
+    for c in by_column[:, : 3 * n]:  # a row each (numpy buffers small 2-D views)
+        np.negative(c, out=c)
+    jac: Array = np.ascontiguousarray(by_column.reshape(18, n).T).reshape(3 * n, 6)
     return jac
 
 
 def _delay_index(t: Array, lag: float) -> tuple[IndexArray, IndexArray, Array]:
     """Linear interpolation at ``t − lag`` (held at the ends) for :func:`_delay_apply`:
     ``(i0, i1, w)``, ``w`` as a column (n, 1)."""
-    s = np.clip(t - lag, t[0], t[-1])
-    i1 = np.clip(np.searchsorted(t, s, side="left"), 1, len(t) - 1)
+    n = len(t)
+    # the methods, not np.clip / np.searchsorted: the same calls without a wrapper's cost
+    s = (t - lag).clip(t[0], t[-1])
+    i1 = t.searchsorted(s, side="left")
+    # np.clip(i1, 1, n - 1) as two plain ufuncs (np.clip's wrapping costs more than both)
+    np.minimum(np.maximum(i1, 1, out=i1), n - 1, out=i1)
     i0 = i1 - 1
-    w = ((s - t[i0]) / (t[i1] - t[i0]))[:, None]
+    t0 = t.take(i0)
+    w = ((s - t0) / (t.take(i1) - t0))[:, None]
     return i0, i1, w
 
 
@@ -435,17 +552,27 @@ def _delay_apply(x: Array, i0: IndexArray, i1: IndexArray, w: Array) -> Array:
     """``x`` (n, c) delayed: ``x[i0] + w * (x[i1] - x[i0])`` with the same operations in the
     same operand order, in two buffers instead of five (fresh arrays of this size are slow
     to allocate here)."""
-    out: Array = np.take(x, i0, axis=0)
-    dx = np.take(x, i1, axis=0)
+    out: Array = x.take(i0, axis=0)
+    dx = x.take(i1, axis=0)
     np.subtract(dx, out, out=dx)
     np.multiply(w, dx, out=dx)
     np.add(out, dx, out=out)
     return out
 
 
-def _rotate_z(delta: Array, v: Array) -> Array:
-    c, s = np.cos(delta), np.sin(delta)
-    return np.stack((c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1], v[:, 2]), axis=1)
+def _median_step(t: Array) -> float:
+    """``float(np.median(np.diff(t)))`` (s) for ``len(t) > 1``, without ``np.median``'s ~30 µs
+    of wrapping: the same order statistics from one partition, the middle two averaged as
+    ``np.mean`` does (their sum over 2), and NaN if a step is NaN (NaN sorts last)."""
+    d = np.diff(t)
+    n = len(d)
+    h = n // 2
+    part = np.partition(d, [h - 1, h, n - 1] if n % 2 == 0 else [h, n - 1])
+    if math.isnan(part[-1]):
+        return float(part[-1])
+    if n % 2:
+        return float(part[h])
+    return float(np.add.reduce(part[h - 1 : h + 1]) / 2)
 
 
 def update_improved(
@@ -462,7 +589,7 @@ def update_improved(
     a, b, ts = _rows(w.a, v, all_valid), _rows(w.b, v, all_valid), _rows(w.t, v, all_valid)
     tau = ts - t
     # the last ``window_s`` of the (time-ordered) window: a suffix
-    k = int(np.searchsorted(tau, -params.window_s, side="right"))
+    k = int(tau.searchsorted(-params.window_s, side="right"))
     excitation = _rms_horizontal(b[k:]) if k < len(b) else 0.0
     state.excitation = excitation
     if (
@@ -471,9 +598,8 @@ def update_improved(
         or _motion_subwindows(w.t, w.p, v, all_valid, params, t) < params.min_motion_subwindows
     ):
         return False
-    cl = _rows(w.cl, v, all_valid) if w.cl is not None else None
     if params.estimate_lag and (state.n_counted % params.lag_every == 0 or not state.converged):
-        dt = float(np.median(np.diff(w.t))) if len(w.t) > 1 else 0.04
+        dt = _median_step(w.t) if len(w.t) > 1 else 0.04
         k = int(np.searchsorted(w.t, t - params.window_s, side="right"))
         a_tail = w.a[k:]
         if params.estimate_sensor_errors and w.cl is not None:
@@ -492,6 +618,7 @@ def update_improved(
         )
     else:
         lag, weight = 0.0, 0.0
+    delay: tuple[IndexArray, IndexArray, Array] | None = None
     if params.estimate_lag:
         if weight > 0:
             # the latency is constant: pool the windows' estimates by their sharpness
@@ -499,13 +626,16 @@ def update_improved(
             state.lag_weight = min(state.lag_weight + weight, 50.0 * weight)
         if state.lag != 0.0:
             # a and cl delayed apart (the same indices and weights as one concatenated array)
-            i0, i1, wd = _delay_index(ts, state.lag)
-            a = _delay_apply(a, i0, i1, wd)
-            if cl is not None:
-                cl = _delay_apply(cl, i0, i1, wd)
+            delay = _delay_index(ts, state.lag)
+            a = _delay_apply(a, *delay)
     rate0 = state.rate if state.converged else 0.0
-    if params.estimate_sensor_errors and cl is not None and np.any(cl):
-        d0, rate, sd = _fit_with_sensor_errors(state, a, b, tau, cl, rate0, params)
+    jac = None
+    if params.estimate_sensor_errors and w.cl is not None:
+        cl = _rows(w.cl, v, all_valid)
+        jac = _jacobian(cl if delay is None else _delay_apply(cl, *delay))
+    # the sensor errors need cl not all zero (as np.any(cl); a nonzero first sample answers)
+    if jac is not None and (bool(jac[:3].any()) or bool(jac.any())):
+        d0, rate, sd = _fit_with_sensor_errors(state, a, b, tau, jac, rate0, params)
     else:
         d0, rate, sd, _ = fit_drift(a, b, tau, rate0, params)
     d = wrap(d0 + rate * lag_s)
