@@ -267,9 +267,9 @@ class _ImuStage:
     """6D orientation and elbow-acceleration terms at the IMU rate (frame I).
 
     Two stores of the same samples: the numpy buffer for the vectorised consumers (grid,
-    batch rows), filled from the pending pieces only when one of them asks (a live message then
-    costs no buffer copy), and a mirror of the newest samples in Python floats for single
-    rows (:meth:`at`), which index it without any numpy call."""
+    batch rows), filled from the pending pieces only when one of them asks (a live message
+    then costs no buffer copy), and a mirror of the newest samples in Python floats for
+    single rows (:meth:`at`), which index it without any numpy call."""
 
     # buffer columns: t, segment id, q_IA (4), the 6D filter's sensor orientation q_IS (4),
     # specific force in the sensor frame (3), paper method's eq. 1–2 acceleration (3), the
@@ -292,8 +292,8 @@ class _ImuStage:
         self.gyro_lp: LowPass | None = None
         self.gyro_zi: Array | None = None
         self.gyro_prev: Array | None = None
-        # last (t, ω_A) of this segment (tuples: the collector stops tracking the pending
-        # pieces that hold it)
+        # last (t, ω_A) of this segment (a tuple of floats: the cyclic collector stops
+        # tracking it, also where _p_prev holds it)
         self.w_prev: tuple[float, tuple[float, ...]] | None = None
         self.buf = RowBuffer(self.WIDTH)
         self.tl: list[float] = []  # every sample's time, buffered or pending (bisect)
