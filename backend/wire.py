@@ -396,8 +396,6 @@ _REQUIRED = {
     kind: operator.attrgetter(*(f.name for f in msgspec.structs.fields(cls) if f.required))
     for kind, cls in _CONVERT.items()
 }
-# per prefix: stream key -> its ParsedKey
-_STREAM_KEYS: dict[str, dict[str, keys.ParsedKey]] = {}
 _NAN3 = (math.nan, math.nan, math.nan)
 
 
@@ -431,7 +429,6 @@ def _decode_items(
     out: list[Decoded] = []
     # per kind: every accepted message's t, concatenated, and its rows of a, b and c
     acc: dict[str, tuple[list[float], list[Vec3], list[Vec3], list[Vec3]]] = {}
-    streams = _STREAM_KEYS.setdefault(prefix, {})
     limit = MAX_PAYLOAD_BYTES  # the payload is shorter than its line
     for item in items:
         pk: keys.ParsedKey | None = None
@@ -441,7 +438,7 @@ def _decode_items(
             except (msgspec.DecodeError, msgspec.ValidationError):
                 pass
             else:
-                pk = streams.get(rec.key) or _stream_key(rec.key, prefix)
+                pk = _stream_key(rec.key, prefix)
                 p = rec.payload
                 # all(): not None (nor an empty list: rejected on the general path)
                 if pk is not None and not all(_REQUIRED[pk.kind](p)):
@@ -492,17 +489,12 @@ def _decode_items(
 
 
 def _stream_key(key: str, prefix: str) -> keys.ParsedKey | None:
-    """The key's ParsedKey if it is a stream's (remembered), else None."""
+    """The key's ParsedKey if it is a stream's, else None (keys.parse remembers keys)."""
     try:
         pk = keys.parse(key, prefix)
     except keys.KeyError_:
         return None
-    if pk.kind not in _STREAMS:
-        return None
-    known = _STREAM_KEYS[prefix]
-    if len(known) < 4096:  # as many as keys.parse remembers
-        known[key] = pk
-    return pk
+    return pk if pk.kind in _STREAMS else None
 
 
 def _rows_array(rows: list[Vec3]) -> FloatArray:

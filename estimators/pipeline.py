@@ -260,7 +260,7 @@ def _run_end(values: Sequence[int], i: int) -> int:
 # ------------------------------------------------------------------------------ stage 1: IMU
 
 _FEW_SAMPLES = 8  # up to this many samples per piece, per-sample work in Python floats
-_MIRROR = 8  # a large piece leaves this many of its newest samples in the float mirror
+_MIRROR = _FEW_SAMPLES  # a larger piece leaves this many of its newest samples in the mirror
 
 
 class _ImuStage:
@@ -448,16 +448,14 @@ class _ImuStage:
             self._mw += wl
             self._mdw += dw
             self._mseg += [seg] * n
-        else:  # the same arithmetic
-            prev_w = np.concatenate((np.array([w0], dtype=np.float64), w_a[:-1]))
-            prev_t = np.concatenate(([t0], t[:-1]))
-            dwa = (w_a - prev_w) / (t - prev_t)[:, None]
-            self.w_prev = (tl[-1], tuple(w_a[-1].tolist()))
+        else:  # the mirror keeps the newest _MIRROR (< n) samples; _flush does all of dω
             k = _MIRROR
+            dwa = (w_a[-k:] - w_a[-k - 1 : -1]) / (t[-k:] - t[-k - 1 : -1])[:, None]
+            self.w_prev = (tl[-1], tuple(w_a[-1].tolist()))
             self._mq = q_ia[-k:].ravel().tolist()
             self._mw = w_a[-k:].ravel().tolist()
-            self._mdw = dwa[-k:].ravel().tolist()
-            self._mseg = [seg] * min(k, n)
+            self._mdw = dwa.ravel().tolist()
+            self._mseg = [seg] * k
         self.tl += tl
 
     def _flush(self) -> None:
