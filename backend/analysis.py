@@ -24,8 +24,9 @@ from typing import Any
 import numpy as np
 
 from backend import keys, recording, wire
+from estimators.output import Output, RowTable, concat_rows
 from estimators.params import PipelineParams
-from estimators.pipeline import Output, Pipeline, RowTable, concat_rows
+from estimators.pipeline import Pipeline
 
 CSV_HEADER = (
     "t,elbow_x,elbow_y,elbow_z,shoulder_x,shoulder_y,shoulder_z,elbow_angle_deg,"

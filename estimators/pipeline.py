@@ -6,7 +6,9 @@ returns the new estimate rows (one per robot sample) and feedback. Results depen
 the messages and their order, never on how they are batched or when ``poll()`` is called,
 and never on the wall clock: the live service and ``rehab analyze`` give identical numbers.
 
-Stages (each keeps its own state, like ``scipy.signal``'s ``zi``):
+Stages (each keeps its own state, like ``scipy.signal``'s ``zi``; the first three in their
+own modules, :mod:`estimators.imu_stage`, :mod:`estimators.robot_stage` and
+:mod:`estimators.grid_stage`; what a poll returns is in :mod:`estimators.output`):
 
 1. IMU: sample-rate probe, gap bridging or reset, 6D orientation ``q_IA`` (VQF), and the
    elbow's acceleration terms in frame I (eqs. 1–2).
@@ -28,49 +30,27 @@ from __future__ import annotations
 
 import bisect
 import math
-from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any, TypeAlias
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import sparse
-from vqf import VQF
 
 from estimators import heading as hd
-from estimators import kinematics as kin
-from estimators import quaternion as quat
 from estimators import rows
-from estimators.buffers import RowBuffer, RowQueue
-from estimators.compensation import CompensationParams, Episode, EpisodeTracker, Indicator
+from estimators.buffers import RowQueue
+from estimators.compensation import CompensationParams, EpisodeTracker, Indicator
 from estimators.cycles import CycleParams, CycleSegmenter
-from estimators.filters import LowPass, dc_group_delay_s
+from estimators.grid_stage import GridStage
+from estimators.imu_stage import ImuStage
+from estimators.output import COL, NCOL, Output, Quality, RowTable
 from estimators.params import PipelineParams
-from estimators.verdicts import CycleJudge, CycleVerdict
+from estimators.robot_stage import RobotStage
+from estimators.verdicts import CycleJudge
 
 Array: TypeAlias = NDArray[np.float64]
 Idx: TypeAlias = NDArray[Any]  # integer and boolean arrays
-EX = np.array([1.0, 0.0, 0.0])
-NCH = 18  # grid channels: v (3), u (3), sensor axes in I (9), robot elbow (3)
-ROW_COLUMNS = (
-    "t",
-    "elbow",  # (n,3) m
-    "shoulder",  # (n,3) m, NaN until converged
-    "elbow_angle_deg",
-    "heading_offset_deg",
-    "heading_converged",  # bool
-    "shoulder_displacement_m",
-    "state",  # int8: -1 unknown, 0 ok, 1 outside, 2 warning
-    "q_ra",  # (n,4) upper arm in R
-    "heading_std_deg",
-    "heading_confidence",  # 0..1
-    "upper_arm_elevation_deg",  # 0 = hanging down, 90 = horizontal
-    "upper_arm_azimuth_deg",  # horizontal direction of the arm, 0 = forward (+y), 90 = +x
-    "nominal_shoulder",  # (n,3) m
-    "conv_elbow_angle_deg",  # conventional (fixed-shoulder) baseline
-    "wrist",  # (n,3) m
-    "upper_arm_length_m",
-)
 
 
 # ------------------------------------------------------------------------------ inputs
@@ -100,128 +80,6 @@ class Event:
     t: float
     type: str
     point: Array | None = None
-
-
-# ------------------------------------------------------------------------------ outputs
-
-
-class RowTable(Mapping[str, Any]):
-    """The rows of one poll as a read-only mapping ``ROW_COLUMNS`` → arrays, backed by one
-    (n, ``_NCOL``) matrix: a column is sliced when asked for, so a consumer pays only for
-    the columns it reads."""
-
-    __slots__ = ("_cols", "m")
-
-    def __init__(self, m: Array, state: Idx) -> None:
-        self.m = m
-        self._cols: dict[str, Any] = {"state": state}  # made once (several consumers read)
-
-    def __getitem__(self, name: str) -> Any:
-        col = self._cols.get(name)
-        if col is None:
-            if name == "heading_converged":
-                col = self.m[:, _COL[name]] > 0.5
-            else:
-                a, w = _SPAN[name]
-                col = self.m[:, a] if w == 1 else self.m[:, a : a + w]
-            self._cols[name] = col
-        return col
-
-    def column_lists(self, index: Idx) -> list[list[float]]:
-        """Matrix columns ``index`` (:func:`column_index`) as Python lists, in one numpy
-        call (a live poll's one row: a tolist() per column cost several times more)."""
-        out: list[list[float]] = self.m[:, index].T.tolist()
-        return out
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(ROW_COLUMNS)
-
-    def __len__(self) -> int:
-        return len(ROW_COLUMNS)
-
-
-def column_index(names: Sequence[str]) -> Idx:
-    """Matrix columns of ``ROW_COLUMNS`` names (every component of a vector column), for
-    :meth:`RowTable.column_lists`. Not ``state``: it is not in the matrix."""
-    idx: list[int] = []
-    for name in names:
-        a, w = _SPAN[name]
-        idx.extend(range(a, a + w))
-    return np.array(idx, dtype=np.intp)
-
-
-def concat_rows(parts: Sequence[Mapping[str, Array]]) -> Mapping[str, Array]:
-    """Consecutive polls' rows as one table."""
-    if all(isinstance(p, RowTable) for p in parts):
-        tables: list[RowTable] = [p for p in parts if isinstance(p, RowTable)]
-        return RowTable(
-            np.concatenate([p.m for p in tables]),
-            np.concatenate([p["state"] for p in tables]),
-        )
-    return {k: np.concatenate([p[k] for p in parts]) for k in ROW_COLUMNS}
-
-
-@dataclass
-class Output:
-    """New rows (``ROW_COLUMNS``, arrays of equal length) and feedback since the last poll."""
-
-    rows: Mapping[str, Array] = field(default_factory=dict)
-    feedback: list[dict[str, Any]] = field(default_factory=list)
-    cycles: list[CycleVerdict] = field(default_factory=list)
-    episodes: list[Episode] = field(default_factory=list)  # tolerated-time rule (§3.4, §5)
-
-    @property
-    def n(self) -> int:
-        return 0 if not self.rows else len(self.rows["t"])
-
-    def extend(self, other: Output) -> None:
-        if other.n:
-            if not self.rows:
-                self.rows = {k: v.copy() for k, v in other.rows.items()}
-            else:
-                self.rows = concat_rows([self.rows, other.rows])
-        self.feedback.extend(other.feedback)
-        self.cycles.extend(other.cycles)
-        self.episodes.extend(other.episodes)
-
-
-@dataclass
-class Quality:
-    """Data-quality counters of one device's streams (reported, never silently dropped)."""
-
-    rejected: dict[str, int] = field(default_factory=dict)
-    ignored: dict[str, int] = field(default_factory=dict)  # valid messages the method does not use
-    imu_samples: int = 0
-    robot_samples: int = 0
-    imu_bridged_gaps: int = 0
-    imu_bridged_samples: int = 0
-    imu_resets: int = 0
-    robot_bridged_gaps: int = 0
-    robot_gaps: int = 0
-    seq_lost: dict[str, int] = field(default_factory=dict)
-    rows_without_imu: int = 0
-    heading_resets: int = 0
-    gaps: list[dict[str, Any]] = field(default_factory=list)
-
-    def reject(self, reason: str, n: int = 1) -> None:
-        self.rejected[reason] = self.rejected.get(reason, 0) + n
-
-    def as_dict(self) -> dict[str, Any]:
-        return {
-            "rejected": dict(sorted(self.rejected.items())),
-            "ignored": dict(sorted(self.ignored.items())),
-            "imu_samples": self.imu_samples,
-            "robot_samples": self.robot_samples,
-            "imu_bridged_gaps": self.imu_bridged_gaps,
-            "imu_bridged_samples": self.imu_bridged_samples,
-            "imu_resets": self.imu_resets,
-            "robot_bridged_gaps": self.robot_bridged_gaps,
-            "robot_gaps": self.robot_gaps,
-            "seq_lost": dict(sorted(self.seq_lost.items())),
-            "rows_without_imu": self.rows_without_imu,
-            "heading_resets": self.heading_resets,
-            "gaps": self.gaps[:1000],
-        }
 
 
 class _Stream:
@@ -257,620 +115,6 @@ def _run_end(values: Sequence[int], i: int) -> int:
     return j
 
 
-# ------------------------------------------------------------------------------ stage 1: IMU
-
-_FEW_SAMPLES = 8  # up to this many samples per piece, per-sample work in Python floats
-_MIRROR = _FEW_SAMPLES  # a larger piece leaves this many of its newest samples in the mirror
-
-
-class _ImuStage:
-    """6D orientation and elbow-acceleration terms at the IMU rate (frame I).
-
-    Two stores of the same samples: the numpy buffer for the vectorised consumers (grid,
-    batch rows), filled from the pending pieces only when one of them asks (a live message
-    then costs no buffer copy), and a mirror of the newest samples in Python floats for
-    single rows (:meth:`at`), which index it without any numpy call."""
-
-    # buffer columns: t, segment id, q_IA (4), the 6D filter's sensor orientation q_IS (4),
-    # specific force in the sensor frame (3), paper method's eq. 1–2 acceleration (3), the
-    # gyro in frame A and its backward difference (3 + 3: predict q_IA past the newest sample)
-    T, SEG, Q, QS, ACC, V, W, DW, WIDTH = 0, 1, 2, 6, 10, 13, 16, 19, 22
-
-    def __init__(self, p: PipelineParams) -> None:
-        self.p = p
-        self.mount = np.array(p.mounting_quat, dtype=np.float64)
-        self.mount /= np.linalg.norm(self.mount)
-        self.identity_mount = bool(np.array_equal(self.mount, [1.0, 0.0, 0.0, 0.0]))
-        # lever arm IMU → elbow in the sensor frame (eq. 1's r = [d, 0, 0] in A)
-        self.r = quat.rotate(self.mount, EX * p.imu_to_elbow_m)
-        self.unmount = quat.conj(self.mount)  # sensor frame → A, for the gyro
-        self.ts: float | None = None
-        self.probe: list[tuple[Array, Array, Array]] = []
-        self.vqf: VQF | None = None
-        self.last: tuple[float, Array, Array] | None = None
-        self.seg = 0
-        self.gyro_lp: LowPass | None = None
-        self.gyro_zi: Array | None = None
-        self.gyro_prev: Array | None = None
-        # last (t, ω_A) of this segment (a tuple of floats: the cyclic collector stops
-        # tracking it, also where _p_prev holds it)
-        self.w_prev: tuple[float, tuple[float, ...]] | None = None
-        self.buf = RowBuffer(self.WIDTH)
-        self.tl: list[float] = []  # every sample's time, buffered or pending (bisect)
-        # pieces not yet in buf, one list per column group (per-piece tuples would stay
-        # tracked by the cyclic collector: they hold arrays)
-        self._p_q: list[Array] = []  # q_IA
-        self._p_qs: list[Array] = []  # q_IS
-        self._p_acc: list[Array] = []
-        self._p_v: list[Array | None] = []
-        self._p_w: list[Array] = []  # ω_A
-        self._p_seg: list[float] = []
-        self._p_len: list[int] = []
-        # (pending row, t, ω_A) where dω's previous sample is not the row before: the first
-        # pending piece and every segment start
-        self._p_prev: list[tuple[int, float, tuple[float, ...]]] = []
-        # the newest samples in floats: q_IA (4 per sample), ω_A (3), dω_A (3), segment id
-        self._mq: list[float] = []
-        self._mw: list[float] = []
-        self._mdw: list[float] = []
-        self._mseg: list[float] = []
-
-    @property
-    def t(self) -> Array:
-        self._flush()
-        return self.buf.col(self.T)
-
-    @property
-    def segid(self) -> Array:
-        self._flush()
-        return self.buf.col(self.SEG)
-
-    def _reset(self) -> None:
-        assert self.ts is not None
-        self.vqf = VQF(self.ts, tauAcc=self.p.vqf_tau_acc_s)
-        self.gyro_zi = None
-        self.gyro_prev = None
-        self.w_prev = None
-
-    def process(
-        self, t: Array, gyr: Array, acc: Array, q: Quality, tl: list[float] | None = None
-    ) -> None:
-        """Samples ``t`` (n,) s (``tl``: as floats, if at hand), ``gyr`` (n, 3) rad/s,
-        ``acc`` (n, 3) m/s²."""
-        if self.ts is None:
-            self.probe.append((t, gyr, acc))
-            if sum(len(c[0]) for c in self.probe) < self.p.rate_probe_samples:
-                return
-            t = np.concatenate([c[0] for c in self.probe])
-            gyr = np.concatenate([c[1] for c in self.probe])
-            acc = np.concatenate([c[2] for c in self.probe])
-            self.probe, tl = [], None
-            dt = float(np.median(np.diff(t[: self.p.rate_probe_samples])))
-            self.ts = min(max(dt, 1e-3), 0.1)  # contract: 10..1000 Hz
-            if self.p.method == "paper":
-                self.gyro_lp = LowPass(self.p.lowpass_order, self.p.gyro_lowpass_hz, 1.0 / self.ts)
-            self._reset()
-        assert self.ts is not None
-        ts = self.ts
-        if tl is None:
-            tl = t.tolist()
-        if self.last is not None:
-            # the usual message: no gap (a plain loop, cheaper than numpy for a few samples)
-            prev, limit = self.last[0], 2.5 * ts
-            for x in tl:
-                if x - prev > limit:
-                    break
-                prev = x
-            else:
-                self.last = (tl[-1], gyr[-1], acc[-1])  # message arrays are never written
-                self._run(t, gyr, acc, tl)
-                return
-        # gaps: bridge short ones by interpolation, reset on long ones
-        if self.last is not None:
-            t = np.concatenate(([self.last[0]], t))
-            gyr = np.concatenate((self.last[1][None], gyr))
-            acc = np.concatenate((self.last[2][None], acc))
-            start = 1
-        else:
-            start = 0
-        self.last = (float(t[-1]), gyr[-1].copy(), acc[-1].copy())
-        dts = np.diff(t)
-        for gi in np.flatnonzero(dts > 2.5 * ts):
-            gap = float(dts[gi])
-            q.gaps.append({"stream": "imu", "t": float(t[gi]), "duration_s": gap})
-            self._run(t[start : gi + 1], gyr[start : gi + 1], acc[start : gi + 1])
-            if gap <= self.p.imu_max_bridge_s:
-                n_missing = int(round(gap / ts)) - 1
-                s = np.arange(1, n_missing + 1) / (n_missing + 1)
-                self._run(
-                    t[gi] + s * gap,
-                    gyr[gi] + s[:, None] * (gyr[gi + 1] - gyr[gi]),
-                    acc[gi] + s[:, None] * (acc[gi + 1] - acc[gi]),
-                )
-                q.imu_bridged_gaps += 1
-                q.imu_bridged_samples += n_missing
-            else:
-                q.imu_resets += 1
-                self.seg += 1
-                self._reset()
-            start = int(gi) + 1
-        self._run(t[start:], gyr[start:], acc[start:])
-
-    def _run(self, t: Array, gyr: Array, acc: Array, tl: list[float] | None = None) -> None:
-        """Orientation and acceleration terms of one contiguous piece of samples."""
-        n = len(t)
-        if n == 0:
-            return
-        assert self.vqf is not None
-        out = self.vqf.updateBatch(np.ascontiguousarray(gyr), np.ascontiguousarray(acc))
-        q_is = out["quat6D"]
-        tl = t.tolist() if tl is None else tl
-        q_ia = q_is if self.identity_mount else quat.mul(q_is, self.mount)
-        v: Array | None = None
-        if self.p.method == "paper":
-            assert self.gyro_lp is not None and self.ts is not None
-            if self.gyro_zi is None or self.gyro_prev is None:
-                self.gyro_zi = self.gyro_lp.initial_state(gyr[0])
-                self.gyro_prev = gyr[0].copy()
-            gf, self.gyro_zi = self.gyro_lp(gyr, self.gyro_zi)
-            prev = np.concatenate((self.gyro_prev[None], gf[:-1]))
-            gdot = (gf - prev) / self.ts  # backward difference of the low-passed gyro (eq. 1)
-            self.gyro_prev = gf[-1].copy()
-            v = kin.inertial_acceleration(q_is, kin.joint_specific_force(acc, gyr, gdot, self.r))
-        w_a = gyr if self.identity_mount else quat.rotate(self.unmount, gyr)
-        seg = float(self.seg)
-        # angular acceleration: backward difference, 0 at a segment's first sample
-        fresh = self.w_prev is None
-        if self.w_prev is None:
-            t0, w0 = tl[0] - 1.0, tuple(w_a[0].tolist())
-        else:
-            t0, w0 = self.w_prev
-        if fresh or not self._p_len:
-            self._p_prev.append((len(self.tl) - len(self.buf), t0, w0))
-        self._p_q.append(q_ia)
-        self._p_qs.append(q_is)
-        self._p_acc.append(acc)
-        self._p_v.append(v)
-        self._p_w.append(w_a)
-        self._p_seg.append(seg)
-        self._p_len.append(n)
-        if n <= _FEW_SAMPLES:  # a message's few: Python floats beat numpy's per-call cost
-            wl = w_a.ravel().tolist()
-            dw: list[float] = []
-            p0, p1, p2 = w0
-            for j, tj in enumerate(tl):
-                x, y, z = wl[3 * j : 3 * j + 3]
-                h = tj - t0
-                dw += ((x - p0) / h, (y - p1) / h, (z - p2) / h)
-                t0, p0, p1, p2 = tj, x, y, z
-            self.w_prev = (tl[-1], (wl[-3], wl[-2], wl[-1]))
-            self._mq += q_ia.ravel().tolist()
-            self._mw += wl
-            self._mdw += dw
-            self._mseg += [seg] * n
-        else:  # the mirror keeps the newest _MIRROR (< n) samples; _flush does all of dω
-            k = _MIRROR
-            dwa = (w_a[-k:] - w_a[-k - 1 : -1]) / (t[-k:] - t[-k - 1 : -1])[:, None]
-            self.w_prev = (tl[-1], tuple(w_a[-1].tolist()))
-            self._mq = q_ia[-k:].ravel().tolist()
-            self._mw = w_a[-k:].ravel().tolist()
-            self._mdw = dwa.ravel().tolist()
-            self._mseg = [seg] * k
-        self.tl += tl
-
-    def _flush(self) -> None:
-        """Move the pending pieces into the buffer: one copy per column group for all."""
-        if not self._p_len:
-            return
-        n = len(self.tl) - len(self.buf)
-        rows = self.buf.grow(n)
-        rows[:, self.T] = self.tl[len(self.tl) - n :]
-        seg = self._p_seg
-        if seg.count(seg[0]) == len(seg):  # one segment: no per-piece repeat
-            rows[:, self.SEG] = seg[0]
-        else:
-            rows[:, self.SEG] = np.repeat(seg, self._p_len)
-        np.concatenate(self._p_q, out=rows[:, self.Q : self.Q + 4])
-        if self.identity_mount:
-            rows[:, self.QS : self.QS + 4] = rows[:, self.Q : self.Q + 4]
-        else:
-            np.concatenate(self._p_qs, out=rows[:, self.QS : self.QS + 4])
-        np.concatenate(self._p_acc, out=rows[:, self.ACC : self.ACC + 3])
-        if self.p.method == "paper":
-            np.concatenate(self._p_v, out=rows[:, self.V : self.V + 3])  # type: ignore[arg-type]
-        else:
-            rows[:, self.V : self.V + 3] = 0.0
-        w = rows[:, self.W : self.W + 3]
-        np.concatenate(self._p_w, out=w)
-        # dω: the same backward difference as _run's (bit-identical), over all pieces at
-        # once: the row before, or where that is not the previous sample the (t, ω) _run took
-        prev_t = np.empty(n)
-        prev_t[1:] = rows[:-1, self.T]
-        prev_w = np.empty((n, 3))
-        prev_w[1:] = w[:-1]
-        for j, t0, w0 in self._p_prev:
-            prev_t[j], prev_w[j] = t0, w0
-        del self._p_q[:], self._p_qs[:], self._p_acc[:], self._p_v[:], self._p_w[:]
-        del self._p_seg[:], self._p_len[:], self._p_prev[:]
-        np.divide(
-            w - prev_w, (rows[:, self.T] - prev_t)[:, None], out=rows[:, self.DW : self.DW + 3]
-        )
-
-    def trim(self, t_keep: float) -> None:
-        i = max(0, bisect.bisect_left(self.tl, t_keep) - 2)
-        if i > 0:
-            if i > len(self.buf):
-                self._flush()
-            self.buf.drop(i)
-            del self.tl[:i]
-            extra = len(self._mseg) - len(self.tl)
-            if extra > 0:
-                del self._mq[: 4 * extra], self._mw[: 3 * extra], self._mdw[: 3 * extra]
-                del self._mseg[:extra]
-
-    def _sample(self, i: int) -> tuple[list[float], list[float], list[float], float]:
-        """Sample ``i``'s q_IA, ω_A, dω_A and segment id as floats: from the mirror, or
-        the buffer for an older one."""
-        k = i - (len(self.tl) - len(self._mseg))
-        if k >= 0:
-            return (
-                self._mq[4 * k : 4 * k + 4],
-                self._mw[3 * k : 3 * k + 3],
-                self._mdw[3 * k : 3 * k + 3],
-                self._mseg[k],
-            )
-        self._flush()
-        r: list[float] = self.buf.a[self.buf.lo + i].tolist()
-        return r[2:6], r[16:19], r[19:22], r[1]
-
-    def smooth(self, g: Array, half: float) -> tuple[Idx, Array]:
-        """Acceleration terms (v, u) at grid times ``g``, anti-aliased by a centred Hann
-        kernel of half-width ``half`` (s). Centred, so it shifts nothing in time: a lag
-        between the two sides would turn into a heading bias on circular paths.
-        Returns ``(ok, x)`` with x (n, 6); ok where the whole kernel lies in one segment."""
-        t, segid = np.ascontiguousarray(self.t), self.segid
-        n, ng = len(t), len(g)
-        ts = self.ts or 0.01
-        m = int(math.ceil(2.0 * half / ts)) + 2
-        if n < m:
-            return np.zeros(ng, bool), np.full((ng, 15), np.nan)
-        lo = np.clip(np.searchsorted(t, g - half, side="left"), 0, n - m)
-        idx = lo[:, None] + np.arange(m)[None, :]
-        tt = t[idx] - g[:, None]
-        w = np.where(np.abs(tt) < half, 0.5 + 0.5 * np.cos(np.pi * tt / half), 0.0)
-        wsum = w.sum(axis=1)
-        ok = (
-            (t[lo] <= g - half + ts)
-            & (t[lo + m - 1] >= g + half - ts)
-            & (segid[lo] == segid[lo + m - 1])
-            & (wsum > 0)
-        )
-        base = int(lo.min())
-        x = self.channels(base, int(lo.max()) + m)
-        # the weighted sums as a sparse product: the same sequential sums as gathering
-        # (ng, m, 15) windows and reducing them, without that array (26 MB for 8 minutes)
-        kernel = sparse.csr_matrix(
-            (w.ravel(), (idx - base).ravel(), np.arange(0, ng * m + 1, m)), shape=(ng, len(x))
-        )
-        with np.errstate(invalid="ignore", divide="ignore"):
-            out = np.asarray(kernel @ x) / wsum[:, None]
-        return ok, out
-
-    def channels(self, lo: int, hi: int) -> Array:
-        """Fusion channels of samples ``lo:hi`` (n, 15): the acceleration term v (used as
-        is), the lever term u = q r q* (differentiated after the low-pass), and the sensor
-        axes in I (for the bias and lever fits). Computed only when the grid needs them."""
-        self._flush()
-        rows = self.buf.view()[lo:hi]
-        if self.p.method == "paper":
-            v = rows[:, self.V : self.V + 3]
-            return np.concatenate((v, np.zeros((len(v), 12))), axis=1)
-        c = quat.matrix_columns(rows[:, self.QS : self.QS + 4])
-        acc, r = rows[:, self.ACC : self.ACC + 3], self.r
-        cx, cy, cz = c[:, 0:3], c[:, 3:6], c[:, 6:9]
-        v = cx * acc[:, 0:1] + cy * acc[:, 1:2] + cz * acc[:, 2:3] - kin.GRAVITY
-        u = cx * r[0] + cy * r[1] + cz * r[2]
-        return np.concatenate((v, u, c), axis=1)
-
-    def _bracket(self, s: Array) -> tuple[Idx, Idx, Idx, Array]:
-        t, segid = np.ascontiguousarray(self.t), self.segid
-        n = len(t)
-        i1 = np.searchsorted(t, s, side="left")
-        i1c = np.clip(i1, 1, max(n - 1, 1))
-        i0 = i1c - 1
-        ok = (i1 > 0) & (i1 < n) & (segid[i0] == segid[i1c])
-        w = np.clip((s - t[i0]) / (t[i1c] - t[i0]), 0.0, 1.0)
-        return ok, i0, i1c, w
-
-    def interp(self, s: Array, asof: Array) -> tuple[Idx, tuple[Array, ...], Array]:
-        """Orientation q_IA (w, x, y, z columns) at times ``s`` (nlerp, :func:`rows.nlerp`);
-        ``ok`` where both neighbours exist in one segment; also the segment ids. Where
-        ``s > asof`` (the IMU had only reached ``asof`` when the row was decided), predicted
-        from the newest sample at or before ``asof`` (:func:`rows.predict`).
-        Bit-identical to :meth:`at` for each time."""
-        if len(self.tl) < 2:
-            nan = np.full(len(s), np.nan)
-            return np.zeros(len(s), bool), (nan, nan, nan, nan), np.zeros(len(s))
-        ok, i0, i1, w = self._bracket(s)
-        q = self.buf.cols(self.Q, self.Q + 4)
-        q0 = tuple(q[i0, j] for j in range(4))
-        q1 = tuple(q[i1, j] for j in range(4))
-        qs, seg = rows.nlerp(rows.VECTOR, q0, q1, w), self.segid[i1]
-        ahead = np.flatnonzero(s > asof)
-        if len(ahead):
-            t = np.ascontiguousarray(self.t)
-            j = np.searchsorted(t, asof[ahead], side="right") - 1
-            jc = np.maximum(j, 0)
-            wa = self.buf.cols(self.W, self.DW + 3)
-            qp = rows.predict(
-                rows.VECTOR,
-                tuple(q[jc, c] for c in range(4)),
-                tuple(wa[jc, c] for c in range(3)),
-                tuple(wa[jc, 3 + c] for c in range(3)),
-                s[ahead] - t[jc],
-            )
-            qs = tuple(a.copy() for a in qs)
-            for a, b in zip(qs, qp, strict=True):
-                a[ahead] = b
-            ok = ok.copy()
-            ok[ahead] = j >= 0
-            seg = seg.copy()
-            seg[ahead] = self.segid[jc]
-        return ok, qs, seg
-
-    def at(self, s: float, asof: float) -> tuple[bool, tuple[float, ...], float]:
-        """:meth:`interp` for one time, with Python floats (a single row costs ~20× less)."""
-        tl = self.tl
-        n = len(tl)
-        if n < 2:
-            return False, NAN4, 0.0
-        if s > asof:
-            # the newest sample at or before asof (usually the newest of all)
-            j = n - 1 if asof >= tl[-1] else bisect.bisect_right(tl, asof) - 1
-            jc = j if j > 0 else 0
-            q, w, dw, seg = self._sample(jc)
-            return j >= 0, rows.predict(rows.SCALAR, q, w, dw, s - tl[jc]), seg
-        i1 = bisect.bisect_left(tl, s)
-        i1c = min(max(i1, 1), n - 1)
-        i0 = i1c - 1
-        k = i0 - (n - len(self._mseg))
-        if k >= 0:  # both in the mirror (the live case): one slice
-            q01, (seg0, seg1) = self._mq[4 * k : 4 * k + 8], self._mseg[k : k + 2]
-            q0, q1 = q01[:4], q01[4:]
-        else:
-            q0, _, _, seg0 = self._sample(i0)
-            q1, _, _, seg1 = self._sample(i1c)
-        t0, t1 = tl[i0], tl[i1c]
-        w = rows.SCALAR.clip((s - t0) / (t1 - t0), 0.0, 1.0)
-        return 0 < i1 < n and seg0 == seg1, rows.nlerp(rows.SCALAR, q0, q1, w), seg1
-
-    def interp_channels(self, s: Array) -> tuple[Idx, Array]:
-        """Fusion channels linearly interpolated at ``s`` (no anti-alias: the paper's way)."""
-        if len(self.tl) < 2:
-            return np.zeros(len(s), bool), np.full((len(s), 15), np.nan)
-        ok, i0, i1, w = self._bracket(s)
-        base = int(i0.min()) if len(i0) else 0
-        x = self.channels(base, int(i1.max()) + 1 if len(i1) else 0)
-        x0, x1 = x[i0 - base], x[i1 - base]
-        return ok, x0 + w[:, None] * (x1 - x0)
-
-
-# ------------------------------------------------------------------------------ stage 2: robot
-
-
-class _RobotStage:
-    """The elbow positions on the physical time base (stamp − offset), with segments split
-    at gaps longer than ``robot_max_bridge_s``."""
-
-    def __init__(self, p: PipelineParams) -> None:
-        self.p = p
-        self.buf = RowBuffer(5)  # t, segment id, p_E (3)
-        self.tail: list[tuple[float, ...]] = []  # rows not yet in buf (one by one: cheaper)
-        self.tl: list[float] = []
-        self.seg = 0
-
-    def _flush(self) -> None:
-        if self.tail:
-            self.buf.append(np.array(self.tail, dtype=np.float64))
-            self.tail = []
-
-    def append(self, s: list[float], p_e: Any, q: Quality) -> None:
-        """Samples at physical times ``s``; ``p_e`` (n, 3) array or n float triples."""
-        seg = self.seg
-        segs: list[int] = []
-        prev = self.tl[-1] if self.tl else None
-        bridge = self.p.robot_max_bridge_s
-        for x in s:
-            if prev is not None:
-                d = x - prev
-                if d > bridge:
-                    q.robot_gaps += 1
-                    q.gaps.append({"stream": "robot", "t": prev, "duration_s": d})
-                    seg += 1
-                elif d > 2.5 / 25.0:
-                    q.robot_bridged_gaps += 1
-            segs.append(seg)
-            prev = x
-        self.seg = seg
-        if isinstance(p_e, list):
-            for x, g, e in zip(s, segs, p_e, strict=True):
-                self.tail.append((x, g, *e))
-        else:
-            self._flush()
-            rows = np.empty((len(s), 5))
-            rows[:, 0] = s
-            rows[:, 1] = segs
-            rows[:, 2:5] = p_e
-            self.buf.append(rows)
-        self.tl.extend(s)
-
-    def interp(self, g: Array) -> tuple[Idx, Array]:
-        n = len(self.tl)
-        if n < 2:
-            return np.zeros(len(g), bool), np.full((len(g), 3), np.nan)
-        self._flush()
-        v = self.buf.view()
-        t, segid, p_e = np.ascontiguousarray(v[:, 0]), v[:, 1], v[:, 2:5]
-        i1 = np.clip(np.searchsorted(t, g, side="left"), 1, n - 1)
-        i0 = i1 - 1
-        ok = (g >= t[0]) & (g <= t[-1]) & (segid[i0] == segid[i1])
-        w = np.clip((g - t[i0]) / (t[i1] - t[i0]), 0.0, 1.0)
-        return ok, p_e[i0] + w[:, None] * (p_e[i1] - p_e[i0])
-
-    def trim(self, t_keep: float) -> None:
-        i = max(0, bisect.bisect_left(self.tl, t_keep) - 2)
-        if i > 0:
-            self._flush()
-            self.buf.drop(i)
-            del self.tl[:i]
-
-
-# ------------------------------------------------------------------------------ stage 3: grid
-
-
-class _GridStage:
-    """Both elbow accelerations on a uniform time base, low-passed (§3.2.1, step 5)."""
-
-    def __init__(self, p: PipelineParams) -> None:
-        self.p = p
-        self.dt = 1.0 / p.fusion_rate_hz
-        # anti-alias kernel half-width (first null at fusion_rate/2); 0: plain interpolation
-        self.half = 2.0 * self.dt if p.use_antialias else 0.0
-        self.lp = LowPass(p.lowpass_order, p.lowpass_cutoff_hz, p.fusion_rate_hz)
-        # Optional common high-pass on both accelerations: removes the slowly varying
-        # gravity leakage of the 6D filter's inclination error (robot side has none).
-        self.hp = LowPass(2, p.highpass, p.fusion_rate_hz, "highpass") if p.highpass > 0 else None
-        self.hp_zi: Array | None = None
-        # VQF levels itself with a first-order time constant tauAcc on the accelerometer
-        tilt_hz = 1.0 / (2.0 * math.pi * p.vqf_tau_acc_s)
-        self.tilt = LowPass(1, tilt_hz, p.fusion_rate_hz, "highpass")
-        self.tilt_zi: Array | None = None
-        self.lag = dc_group_delay_s(p.lowpass_order, p.lowpass_cutoff_hz, p.fusion_rate_hz)
-        self.settle = int(math.ceil(3.0 * self.lag * p.fusion_rate_hz))
-        self.k_next: int | None = None  # next grid index (time k·dt)
-        self.zi: Array | None = None
-        self.hist_y = np.empty((0, NCH))  # last two filtered rows (v, u, c, p)
-        self.hist_x = np.empty((0, NCH))  # ... and their raw values
-        self.hist_g = np.empty(0)
-        self.since = 0
-        self.imu_seg = -1
-        # aligned output buffer (time of sample k−1)
-        self.t = np.empty(0)
-        self.a = np.empty((0, 3))
-        self.b = np.empty((0, 3))
-        self.pos = np.empty((0, 3))
-        self.valid = np.empty(0, dtype=bool)
-        self.seg = np.empty(0, dtype=np.int64)
-        self.cl = np.empty((0, 18))  # sensor axes in I (9) and their second derivative (9)
-
-    @property
-    def frontier(self) -> float:
-        return float(self.t[-1]) if len(self.t) else -math.inf
-
-    def advance(self, imu: _ImuStage, robot: _RobotStage, until: float) -> None:
-        if not imu.tl or not robot.tl:
-            return
-        if self.k_next is None:
-            self.k_next = int(math.ceil(max(imu.tl[0], robot.tl[0]) / self.dt))
-        k_end = int(math.floor(until / self.dt))
-        if k_end * self.dt > until:
-            # k·dt can round above ``until`` (1503 × 0.04 = 60.120000000000005 > 60.12): that
-            # point lies past the newest sample, would be judged invalid now and never be
-            # revisited (a filter restart a batch run does not have). The next advance takes it.
-            k_end -= 1
-        if k_end < self.k_next:
-            return
-        g = np.arange(self.k_next, k_end + 1, dtype=np.float64) * self.dt
-        self.k_next = k_end + 1
-        if self.half > 0:
-            ok_i, vu = imu.smooth(g, self.half)
-        else:
-            ok_i, vu = imu.interp_channels(g)
-        # (the buffer's time column: the same floats as imu.tl, without a list conversion)
-        segs = imu.segid[np.clip(np.searchsorted(imu.t, g), 0, len(imu.tl) - 1)]
-        ok_r, p = robot.interp(g)
-        ok = ok_i & ok_r
-        x = np.concatenate((vu, p), axis=1)
-        parts: list[tuple[Array, Array, Array, Array, Idx, Idx, Array]] = []
-        # contiguous runs of valid samples within one IMU segment
-        brk = np.flatnonzero(np.diff(ok.astype(np.int8)) != 0) + 1
-        seg_brk = np.flatnonzero(np.diff(segs) != 0) + 1
-        bounds = np.unique(np.concatenate(([0], brk, seg_brk, [len(g)])))
-        for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
-            if not ok[lo]:
-                self.zi = None
-                continue
-            xs = x[lo:hi]
-            if self.zi is None or int(segs[lo]) != self.imu_seg:
-                # restart after a gap: steady state at the first value, wait for settling
-                self.zi = self.lp.initial_state(xs[0])
-                self.hp_zi = None
-                self.tilt_zi = None
-                self.hist_y = np.empty((0, NCH))
-                self.hist_x = np.empty((0, NCH))
-                self.since = 0
-                self.imu_seg = int(segs[lo])
-            y, self.zi = self.lp(xs, self.zi)
-            yy = np.concatenate((self.hist_y, y))
-            xx = np.concatenate((self.hist_x, xs))
-            gg = np.concatenate((self.hist_g, g[lo:hi]))[-len(yy) :]
-            if len(yy) >= 3:
-                # second difference at k is centred at k−1: align everything to k−1
-                d2 = (yy[2:] - 2.0 * yy[1:-1] + yy[:-2]) / (self.dt * self.dt)
-                m = len(d2)
-                since = self.since + np.arange(1, m + 1)
-                # a (IMU side), b (robot side), then the bias channels (sensor axes in I)
-                # and the lever channels (their second derivative)
-                ab = np.concatenate(
-                    (yy[1:-1, 0:3] + d2[:, 3:6], d2[:, 15:18], yy[1:-1, 6:15], d2[:, 6:15]), axis=1
-                )
-                if self.tilt is not None:
-                    # the 6D filter levels itself on the slow part of a rotated bias: only
-                    # the faster part reaches the acceleration (VQF's tauAcc)
-                    if self.tilt_zi is None:
-                        self.tilt_zi = self.tilt.initial_state(ab[0, 6:15])
-                    ab[:, 6:15], self.tilt_zi = self.tilt(ab[:, 6:15], self.tilt_zi)
-                if self.hp is not None:
-                    if self.hp_zi is None:
-                        self.hp_zi = self.hp.initial_state(np.zeros(ab.shape[1]))
-                    ab, self.hp_zi = self.hp(ab, self.hp_zi)
-                parts.append(
-                    (
-                        gg[1:-1],
-                        ab[:, 0:3],
-                        ab[:, 3:6],
-                        xx[1:-1, 15:18],
-                        since > self.settle,
-                        np.full(m, self.imu_seg),
-                        ab[:, 6:24],
-                    )
-                )
-                self.since += m
-            self.hist_y, self.hist_x, self.hist_g = yy[-2:], xx[-2:], gg[-2:]
-        if parts:
-            self.t = np.concatenate([self.t, *(pt[0] for pt in parts)])
-            self.a = np.concatenate([self.a, *(pt[1] for pt in parts)])
-            self.b = np.concatenate([self.b, *(pt[2] for pt in parts)])
-            self.pos = np.concatenate([self.pos, *(pt[3] for pt in parts)])
-            self.valid = np.concatenate([self.valid, *(pt[4] for pt in parts)])
-            self.seg = np.concatenate([self.seg, *(pt[5] for pt in parts)])
-            self.cl = np.concatenate([self.cl, *(pt[6] for pt in parts)])
-
-    def window(self, t_end: float, span: float, seg: int) -> hd.Window:
-        lo = int(np.searchsorted(self.t, t_end - span, side="right"))
-        hi = int(np.searchsorted(self.t, t_end, side="right"))
-        sl = slice(lo, hi)
-        valid = self.valid[sl] & (self.seg[sl] == seg)
-        return hd.Window(self.t[sl], self.a[sl], self.b[sl], self.pos[sl], valid, self.cl[sl])
-
-    def trim(self, t_keep: float) -> None:
-        i = int(np.searchsorted(self.t, t_keep))
-        if i > 0:
-            self.t, self.a, self.b = self.t[i:], self.a[i:], self.b[i:]
-            self.pos, self.valid, self.seg = self.pos[i:], self.valid[i:], self.seg[i:]
-            self.cl = self.cl[i:]
-
-
 # ------------------------------------------------------------------------------ pipeline
 
 
@@ -883,9 +127,9 @@ class Pipeline:
         self.quality = Quality()
         self._imu_stream = _Stream("imu")
         self._robot_stream = _Stream("robot")
-        self._imu = _ImuStage(p)
-        self._robot = _RobotStage(p)
-        self._grid = _GridStage(p)
+        self._imu = ImuStage(p)
+        self._robot = RobotStage(p)
+        self._grid = GridStage(p)
         # messages fed since the last poll
         self._imu_pending: list[tuple[Array, Array, Array, list[float] | None]] = []
         # (t, wrist, proximal, elbow, the first three as float lists if at hand)
@@ -1389,7 +633,7 @@ class Pipeline:
             tt = t
             # (not np.frombuffer of an array.array, though faster: its base objects would be
             # tracked by the cyclic collector as long as the rows live)
-            m = np.fromiter(flat, np.float64, len(flat)).reshape(n, _NCOL)  # np.array: 1.5x
+            m = np.fromiter(flat, np.float64, len(flat)).reshape(n, NCOL)  # np.array: 1.5x
         else:
             block = self._rowq.take_block(n)
             with np.errstate(invalid="ignore", divide="ignore"):  # NaN where no estimate
@@ -1416,7 +660,8 @@ class Pipeline:
         return Output(RowTable(m, codes), fb, list(verdicts), episodes)
 
     def _row(self, t: float, dec: tuple[bool, int, float], r: Sequence[float]) -> list[float]:
-        """One row in Python floats, in ``_LAYOUT`` order (state filled in later)."""
+        """One row in Python floats, in :data:`estimators.output.LAYOUT` order (state filled in
+        later)."""
         M = rows.SCALAR
         p = self.params
         with_imu, k, asof = dec
@@ -1450,7 +695,7 @@ class Pipeline:
         ]  # fmt: skip
 
     def _rows_vector(self, t: Array, dec: list[tuple[bool, int, float]], block: Array) -> Array:
-        """:meth:`_row` for many rows at once, as arrays: (n, ``_NCOL``)."""
+        """:meth:`_row` for many rows at once, as arrays: (n, ``NCOL``)."""
         M = rows.VECTOR
         p = self.params
         n = len(t)
@@ -1655,14 +900,5 @@ def _kind_of(msg: Any) -> str:
 _COINCIDENT_M2 = 1e-12  # squared cuff distance, m², below which the cuffs coincide
 _SMALL = 16  # up to this many rows or samples per call take the Python-float path
 NAN3 = (math.nan,) * 3
-NAN4 = (math.nan,) * 4
 NAN8 = (math.nan,) * 8
-_WIDTHS = {"elbow": 3, "shoulder": 3, "q_ra": 4, "nominal_shoulder": 3, "wrist": 3}
-_LAYOUT: list[tuple[str, int, int]] = []
-for _name in ROW_COLUMNS:
-    _w = _WIDTHS.get(_name, 1)
-    _LAYOUT.append((_name, sum(w for _, _, w in _LAYOUT), _w))
-_COL = {name: a for name, a, _ in _LAYOUT}
-_SPAN = {name: (a, w) for name, a, w in _LAYOUT}
-_NCOL = sum(w for _, _, w in _LAYOUT)
-_DISP = _COL["shoulder_displacement_m"]
+_DISP = COL["shoulder_displacement_m"]

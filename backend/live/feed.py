@@ -29,7 +29,7 @@ import numpy as np
 import orjson
 from numpy.typing import NDArray
 
-from estimators.pipeline import RowTable, column_index
+from estimators.output import RowTable, column_index
 
 Rows = dict[str, list[Any]]
 

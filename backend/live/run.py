@@ -22,8 +22,9 @@ from backend.deps import SessionInfo
 from backend.live.devices import DeviceStats
 from backend.live.files import SessionFiles
 from backend.live.ingest import RawMessage, recorded_form
+from estimators.output import Output
 from estimators.params import PipelineParams
-from estimators.pipeline import Output, Pipeline
+from estimators.pipeline import Pipeline
 
 log = logging.getLogger(__name__)
 

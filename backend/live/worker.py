@@ -31,7 +31,7 @@ from backend.live.ingest import RawMessage
 from backend.live.run import LiveRun, SessionContext, rows_ready
 from backend.live.store import DbWriter
 from backend.live.zenoh_io import ZenohIO
-from estimators.pipeline import Output
+from estimators.output import Output
 from estimators.verdicts import CycleVerdict
 
 log = logging.getLogger(__name__)

@@ -11,8 +11,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from backend import wire
+from estimators.output import Output
 from estimators.params import PipelineParams
-from estimators.pipeline import Output, Pipeline
+from estimators.pipeline import Pipeline
 from tests.conftest import Session
 
 

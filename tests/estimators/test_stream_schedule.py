@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 
 from backend import wire
+from estimators.output import Output
 from estimators.params import PipelineParams
-from estimators.pipeline import Output, Pipeline
+from estimators.pipeline import Pipeline
 from simulator import SimConfig, simulate
 
 DT = 1.0 / PipelineParams().fusion_rate_hz

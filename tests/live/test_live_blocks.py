@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from backend.live import feed
 from backend.live.devices import DeviceStats
 from backend.live.run import SHOULDER_MEMORY, LiveRun
-from estimators.pipeline import _NCOL, _SPAN, RowTable
+from estimators.output import NCOL, SPAN, RowTable
 
 SPECIAL = [0.0, -0.0, 1e-7, 1e16, 1e300, 5e-324, 0.1, 1 / 3, np.nan, np.inf, -np.inf]
 
@@ -117,8 +117,8 @@ def test_shoulder_estimate_from_batched_rows(seed: int) -> None:
 def as_table(rows: dict[str, np.ndarray]) -> RowTable:
     """The same rows as the pipeline hands them over: one matrix behind a mapping."""
     n = len(rows["t"])
-    m = np.full((n, _NCOL), np.nan)
-    for name, (a, w) in _SPAN.items():
+    m = np.full((n, NCOL), np.nan)
+    for name, (a, w) in SPAN.items():
         if name in rows and name != "state":
             m[:, a : a + w] = np.asarray(rows[name], dtype=np.float64).reshape(n, w)
     return RowTable(m, rows["state"])
