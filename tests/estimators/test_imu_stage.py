@@ -1,0 +1,108 @@
+"""The IMU stage (:mod:`estimators.imu_stage`): however its samples are split into pieces,
+it holds the same numbers, and a single-time look-up equals the array path bit for bit."""
+
+from __future__ import annotations
+
+import math
+import struct
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from backend import wire
+from estimators.imu_stage import ImuStage
+from estimators.output import Quality
+from estimators.params import PipelineParams
+from tests.conftest import Session
+
+Arrays = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+@pytest.fixture(scope="module")
+def imu(short_session: Session) -> Arrays:
+    """The session's first 30 s of IMU samples, with a short gap (bridged) and a long one
+    (the 6D filter restarts: a new segment)."""
+    ms = [m for m in short_session.messages if isinstance(m, wire.ImuMessage)]
+    t = np.concatenate([m.t for m in ms])
+    gyr = np.concatenate([m.gyr for m in ms])
+    acc = np.concatenate([m.acc for m in ms])
+    keep = (t < 30.0) & ~((t > 10.0) & (t < 10.05)) & ~((t > 20.0) & (t < 21.0))
+    return t[keep], gyr[keep], acc[keep]
+
+
+def _fed(
+    imu: Arrays, cuts: list[int], params: PipelineParams | None = None
+) -> tuple[ImuStage, Quality]:
+    t, gyr, acc = imu
+    stage, q = ImuStage(params or PipelineParams()), Quality()
+    bounds = [0, *sorted(set(cuts)), len(t)]
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        if b > a:
+            stage.process(t[a:b], gyr[a:b], acc[a:b], q)
+    return stage, q
+
+
+def _buffer(stage: ImuStage) -> bytes:
+    stage.t  # noqa: B018  # moves the pending pieces into the buffer
+    return stage.buf.view().tobytes()
+
+
+def _bits(x: object) -> bytes:
+    return np.asarray(x, dtype=np.float64).tobytes()
+
+
+def test_gaps_are_bridged_or_start_a_segment(imu: Arrays) -> None:
+    stage, q = _fed(imu, [])
+    assert q.imu_bridged_gaps == 1 and q.imu_resets == 1
+    assert [g["stream"] for g in q.gaps] == ["imu", "imu"]
+    seg = stage.segid
+    assert set(seg.tolist()) == {0.0, 1.0}
+    t0, t1 = stage.t[seg == 0.0], stage.t[seg == 1.0]
+    assert t0[-1] < 20.01 and t1[0] >= 21.0  # the segment starts after the long gap
+    assert np.diff(t0).max() < 1.5 * (stage.ts or 0)  # the short one is filled in
+
+
+@settings(
+    max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    cuts=st.lists(st.integers(1, 2900), max_size=60), method=st.sampled_from(["improved", "paper"])
+)
+def test_any_split_into_pieces_holds_the_same_numbers(
+    imu: Arrays, cuts: list[int], method: str
+) -> None:
+    p = PipelineParams(method=method)
+    (one, q1), (many, q2) = _fed(imu, [], p), _fed(imu, cuts, p)
+    assert _buffer(one) == _buffer(many)
+    assert q1 == q2
+    n = len(one.tl)
+    assert _bits(one.channels(0, n)) == _bits(many.channels(0, n))
+
+
+@settings(
+    max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    s=st.floats(-0.5, 31.0),
+    behind=st.one_of(st.none(), st.floats(0.0, 0.3)),
+    piece=st.sampled_from([4, 13]),
+    trim=st.booleans(),
+)
+def test_single_time_lookup_equals_the_array_path(
+    imu: Arrays, s: float, behind: float | None, piece: int, trim: bool
+) -> None:
+    """``at`` (Python floats, the newest samples from the float mirror) against ``interp``
+    (arrays), inside a segment, across the gaps, before and after the data, and predicted
+    past ``asof``. Pieces of 4 are the live case; 13 leaves only the mirror's newest."""
+    t = imu[0]
+    stage, _ = _fed(imu, list(range(piece, len(t), piece)))
+    if trim:
+        stage.trim(15.0)
+    asof = math.inf if behind is None else float(t[-1]) - behind
+    ok, q, seg = stage.at(s, asof)
+    oka, qa, sega = stage.interp(np.array([s]), np.array([asof]))
+    assert ok == bool(oka[0])
+    assert seg == float(sega[0])
+    assert struct.pack("4d", *q) == struct.pack("4d", *(float(c[0]) for c in qa))
