@@ -5,7 +5,7 @@ from __future__ import annotations
 from datetime import datetime, timedelta
 from typing import Any
 
-from sqlalchemy import select, update
+from sqlalchemy import func, select, update
 from sqlalchemy.dialects.postgresql import insert as pg_insert
 from sqlalchemy.dialects.sqlite import insert as sqlite_insert
 from sqlalchemy.ext.asyncio import AsyncSession
@@ -29,11 +29,17 @@ async def touch_device(
     """
     now = seen_at or utcnow()
     values: dict[str, Any] = {"name": name, "first_seen": now, "last_seen": now, "status": "online"}
-    changes: dict[str, Any] = {"last_seen": now, "status": "online"}
+    pg = db.get_bind().dialect.name == "postgresql"
+    stmt = (pg_insert if pg else sqlite_insert)(Device).values(**values)
+    # never back in time: writers queue their snapshots, so an older one can land last
+    newest = func.greatest if pg else func.max  # SQLite: its two-argument max() (ISO text)
+    changes: dict[str, Any] = {
+        "last_seen": newest(Device.last_seen, stmt.excluded.last_seen),
+        "status": "online",
+    }
     if stats is not None:
         values["stats"] = changes["stats"] = stats
-    insert = pg_insert if db.get_bind().dialect.name == "postgresql" else sqlite_insert
-    stmt = insert(Device).values(**values)
+        stmt = stmt.values(stats=stats)
     await db.execute(stmt.on_conflict_do_update(index_elements=["name"], set_=changes))
 
 

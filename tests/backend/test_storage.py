@@ -141,6 +141,13 @@ async def test_device_registry(
         await touch_device(db, "rig-2", seen_at=utcnow() - timedelta(minutes=5))
     async with state.database.transaction() as db:
         await touch_device(db, "rig-1")  # an update keeps first_seen and the stats
+    async with state.database.session() as db:
+        seen = (await db.scalars(select(Device.last_seen).where(Device.name == "rig-1"))).one()
+    async with state.database.transaction() as db:  # a queued, older snapshot lands late
+        await touch_device(db, "rig-1", seen_at=seen - timedelta(seconds=2))
+    async with state.database.session() as db:
+        after = (await db.scalars(select(Device.last_seen).where(Device.name == "rig-1"))).one()
+    assert after == seen  # last_seen never goes back
     devices = (await client.get("/api/devices", headers=admin)).json()
     assert [d["name"] for d in devices] == ["rig-1", "rig-2"]
     rig1, rig2 = devices
