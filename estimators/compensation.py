@@ -110,7 +110,7 @@ def displacement(shoulder: ArrayLike, nominal: ArrayLike, norm: Norm = "horizont
     return out
 
 
-_ONE_CODE = {c: np.array([c], dtype=np.int8) for c in (UNKNOWN, OK, OUTSIDE, WARNING)}
+ONE_CODE = {c: np.array([c], dtype=np.int8) for c in (UNKNOWN, OK, OUTSIDE, WARNING)}
 
 
 def state_name(code: int) -> str | None:
@@ -196,10 +196,7 @@ class Indicator:
         :meth:`cycle_completed` first, with its ``detected_at``. Returns ``codes`` (N,) int8
         and the state-change events ``[(t, "ok" | "outside" | "warning"), ...]`` in time order.
         """
-        for b in boundaries:
-            cs = getattr(b, "cycle_start", None)
-            if cs is not None:
-                self.cycle_completed(float(cs), float(b), getattr(b, "detected_at", None))
+        self._take_boundaries(boundaries)
         if tolerated_s is None:
             tolerated_s = self.params.warning_after_s
         if isinstance(t, list) and isinstance(displacement, list) and len(t) <= self._SMALL:
@@ -209,7 +206,7 @@ class Indicator:
             if len(t) == 1:  # the live case; copying a ready array is twice as fast as np.array
                 changes: list[tuple[float, str]] = []
                 code = self._step(t[0], displacement[0], tolerated_s, changes)
-                return _ONE_CODE[code].copy(), changes
+                return ONE_CODE[code].copy(), changes
             return self._update_small(t, displacement, tolerated_s)
         tt = np.asarray(t, dtype=np.float64)
         dd = np.asarray(displacement, dtype=np.float64)
@@ -221,6 +218,25 @@ class Indicator:
         if n <= self._SMALL:
             return self._update_small(tt.tolist(), dd.tolist(), tolerated_s)
         return self._update_vector(tt, dd, tolerated_s)
+
+    def push(
+        self,
+        t: float,
+        displacement: float,
+        boundaries: Sequence[float],
+        changes: list[tuple[float, str]],
+    ) -> int:
+        """:meth:`update` of one sample (the live case) as floats: its code; its
+        state-change event, if any, is appended to ``changes``."""
+        if boundaries:
+            self._take_boundaries(boundaries)
+        return self._step(t, displacement, self.params.warning_after_s, changes)
+
+    def _take_boundaries(self, boundaries: Sequence[float]) -> None:
+        for b in boundaries:
+            cs = getattr(b, "cycle_start", None)
+            if cs is not None:
+                self.cycle_completed(float(cs), float(b), getattr(b, "detected_at", None))
 
     # -- tolerated duration per sample ------------------------------------------------------
 
@@ -360,11 +376,8 @@ class EpisodeTracker:
             cl: list[int] = (codes if isinstance(codes, np.ndarray) else np.asarray(codes)).tolist()
             if not len(cl) == len(displacement) == len(t):
                 raise ValueError("t and codes must both have shape (N,)")
-            if len(t) == 1:  # the live case; mostly no run is open and none starts
-                if cl[0] >= OUTSIDE or self._start is not None:
-                    self._step(t[0], cl[0], displacement[0], episodes)
-                else:
-                    self._t_last = t[0]
+            if len(t) == 1:
+                return self.push(t[0], cl[0], displacement[0])
             else:
                 for ti, ci, di in zip(t, cl, displacement, strict=True):
                     self._step(ti, ci, di, episodes)
@@ -417,6 +430,15 @@ class EpisodeTracker:
             si += 1
         self._absorb(cc, dd, pos, n)
         self._t_last = float(tt[-1])
+        return episodes
+
+    def push(self, t: float, code: int, displacement: float) -> list[Episode]:
+        """:meth:`update` of one sample (the live case) as floats."""
+        episodes: list[Episode] = []
+        if code >= OUTSIDE or self._start is not None:
+            self._step(t, code, displacement, episodes)
+        else:  # mostly no run is open and none starts
+            self._t_last = t
         return episodes
 
     def _step(self, ti: float, ci: int, di: float, episodes: list[Episode]) -> None:

@@ -394,7 +394,7 @@ class ImuStage:
             j = n - 1 if asof >= tl[-1] else bisect.bisect_right(tl, asof) - 1
             jc = j if j > 0 else 0
             q, w, dw, seg = self._sample(jc)
-            return j >= 0, rows.predict(rows.SCALAR, q, w, dw, s - tl[jc]), seg
+            return j >= 0, rows.predict_scalar(q, w, dw, s - tl[jc]), seg
         i1 = bisect.bisect_left(tl, s)
         i1c = min(max(i1, 1), n - 1)
         i0 = i1c - 1
@@ -405,9 +405,10 @@ class ImuStage:
         else:
             q0, _, _, seg0 = self._sample(i0)
             q1, _, _, seg1 = self._sample(i1c)
-        t0, t1 = tl[i0], tl[i1c]
-        w = rows.SCALAR.clip((s - t0) / (t1 - t0), 0.0, 1.0)
-        return 0 < i1 < n and seg0 == seg1, rows.nlerp(rows.SCALAR, q0, q1, w), seg1
+        t0 = tl[i0]
+        a = (s - t0) / (tl[i1c] - t0)
+        a = 0.0 if a < 0.0 else 1.0 if a > 1.0 else a  # as np.clip (NaN passes)
+        return 0 < i1 < n and seg0 == seg1, rows.nlerp_scalar(q0, q1, a), seg1
 
     def interp_channels(self, s: Array) -> tuple[Idx, Array]:
         """Fusion channels linearly interpolated at ``s`` (no anti-alias: the paper's way)."""

@@ -40,14 +40,14 @@ from numpy.typing import NDArray
 from estimators import heading as hd
 from estimators import rows
 from estimators.buffers import RowQueue
-from estimators.compensation import CompensationParams, EpisodeTracker, Indicator
+from estimators.compensation import ONE_CODE, CompensationParams, EpisodeTracker, Indicator
 from estimators.cycles import CycleParams, CycleSegmenter
 from estimators.grid_stage import GridStage
 from estimators.imu_stage import ImuStage
 from estimators.output import COL, NCOL, Output, Quality, RowTable
 from estimators.params import PipelineParams
 from estimators.robot_stage import RobotStage
-from estimators.verdicts import CycleJudge
+from estimators.verdicts import CycleJudge, CycleVerdict
 
 Array: TypeAlias = NDArray[np.float64]
 Idx: TypeAlias = NDArray[Any]  # integer and boolean arrays
@@ -582,12 +582,11 @@ class Pipeline:
         n = len(t)
         lp = self.params.cuff_to_elbow_m
         if n <= _SMALL:
-            M = rows.SCALAR
             tl, wl, pl = lists or (t.tolist(), wrist.tolist(), prox.tolist())
             el = None if elbow is None else elbow.tolist()
             pes: list[tuple[float, ...]] = []
             for j, (w, p) in enumerate(zip(wl, pl, strict=True)):
-                xc = rows.unit(M, (w[0] - p[0], w[1] - p[1], w[2] - p[2]))
+                xc = rows.unit_scalar(w[0] - p[0], w[1] - p[1], w[2] - p[2])
                 pe = (p[0] - lp * xc[0], p[1] - lp * xc[1], p[2] - lp * xc[2])
                 if el is not None:
                     pe = tuple(e if math.isfinite(e) else v for e, v in zip(el[j], pe, strict=True))
@@ -614,6 +613,8 @@ class Pipeline:
             return Output()
         self._n_done = hi
         n = hi - lo
+        if n == 1:
+            return self._one_row(lo)
         t = self._row_t[lo:hi]
         dec = self._decisions[lo:hi]
         # compensation rule (§3.4); segment first: a completed cycle sets the tolerated
@@ -631,9 +632,7 @@ class Pipeline:
                 disp.append(row[_DISP])
                 boundaries.extend(seg.push(tj, rj[0], rj[1]))
             tt = t
-            # (not np.frombuffer of an array.array, though faster: its base objects would be
-            # tracked by the cyclic collector as long as the rows live)
-            m = np.fromiter(flat, np.float64, len(flat)).reshape(n, NCOL)  # np.array: 1.5x
+            m = np.fromiter(flat, np.float64, len(flat)).reshape(n, NCOL)
         else:
             block = self._rowq.take_block(n)
             with np.errstate(invalid="ignore", divide="ignore"):  # NaN where no estimate
@@ -643,26 +642,30 @@ class Pipeline:
         codes, changes = self._indicator.update(tt, disp, None, boundaries)
         verdicts = self._judge.update(tt, codes, boundaries, disp)
         episodes = self._episodes.update(tt, codes, disp)
-        fb: list[dict[str, Any]] = [{"t": tc, "type": "state", "state": st} for tc, st in changes]
-        if verdicts:
-            fb.extend(
-                {
-                    "type": "cycle",
-                    "start": v.start,
-                    "end": v.end,
-                    "outside_fraction": v.outside_fraction,
-                    "compensatory": v.compensatory,
-                }
-                for v in verdicts
-                if v.compensatory is not None
-            )
-            fb.sort(key=lambda f: f.get("t", f.get("end", 0.0)))
-        return Output(RowTable(m, codes), fb, list(verdicts), episodes)
+        return Output(RowTable(m, codes), _feedback(changes, verdicts), verdicts, episodes)
+
+    def _one_row(self, i: int) -> Output:
+        """:meth:`_rows` of the one row ``i`` (the live case): each stage's single-sample
+        entry, floats only up to the row's matrix."""
+        t = self._row_t[i]
+        r = self._rowq.take_rows(1)[0]
+        row = self._row(t, self._decisions[i], r)
+        d = row[_DISP]
+        boundaries = self._segmenter.push(t, r[0], r[1])
+        changes: list[tuple[float, str]] = []
+        code = self._indicator.push(t, d, boundaries, changes)
+        verdicts = self._judge.push(t, code, d, boundaries)
+        episodes = self._episodes.push(t, code, d)
+        # (not np.frombuffer of an array.array, though faster: its base objects would be
+        # tracked by the cyclic collector as long as the rows live)
+        m = np.fromiter(row, np.float64, NCOL).reshape(1, NCOL)  # np.array: 1.5x
+        return Output(
+            RowTable(m, ONE_CODE[code].copy()), _feedback(changes, verdicts), verdicts, episodes
+        )
 
     def _row(self, t: float, dec: tuple[bool, int, float], r: Sequence[float]) -> list[float]:
         """One row in Python floats, in :data:`estimators.output.LAYOUT` order (state filled in
         later)."""
-        M = rows.SCALAR
         p = self.params
         with_imu, k, asof = dec
         s = t - p.robot_time_offset_s
@@ -670,7 +673,7 @@ class Pipeline:
         i = bisect.bisect_right(self._snap_t, min(s, asof) - self._snap_lag) - 1
         snap = self._snaps[i] if i >= 0 else NAN8
         lat = snap[7]
-        latency = M.maximum(lat, 0.0) if math.isfinite(lat) else 0.0
+        latency = (lat if lat >= 0.0 else 0.0) if math.isfinite(lat) else 0.0  # M.maximum
         ok_p, q_p, seg_p = self._imu.at(s - latency, asof)
         ok_n, q_n, seg_n = self._imu.at(s, asof)
         ok = ok_p and with_imu and ok_n and seg_n == seg_p
@@ -685,7 +688,7 @@ class Pipeline:
             x_now, x_c, p_e, sh, nom, p.displacement_norm
         )
         if p.elbow_angle_timing != "fresh":
-            angle = self._angle(M, x_now, x_a, x_c, prev, t - prev_t, latency)
+            angle = self._angle(rows.SCALAR, x_now, x_a, x_c, prev, t - prev_t, latency)
         if not with_imu:
             self.quality.rows_without_imu += 1
         good = 1.0 if h.good else 0.0
@@ -882,6 +885,27 @@ class Pipeline:
             del self._decisions[:k]
             self._n_decided -= k
             self._n_done = 0
+
+
+def _feedback(
+    changes: list[tuple[float, str]], verdicts: list[CycleVerdict]
+) -> list[dict[str, Any]]:
+    """Contract §7's feedback of a poll: state changes and completed cycles, in time order."""
+    fb: list[dict[str, Any]] = [{"t": tc, "type": "state", "state": st} for tc, st in changes]
+    if verdicts:
+        fb.extend(
+            {
+                "type": "cycle",
+                "start": v.start,
+                "end": v.end,
+                "outside_fraction": v.outside_fraction,
+                "compensatory": v.compensatory,
+            }
+            for v in verdicts
+            if v.compensatory is not None
+        )
+        fb.sort(key=lambda f: f.get("t", f.get("end", 0.0)))
+    return fb
 
 
 _KINDS: dict[type, str] = {}

@@ -172,6 +172,42 @@ def predict(
     return rw / n, rx / n, ry / n, rz / n
 
 
+def nlerp_scalar(
+    a: Sequence[float], b: Sequence[float], s: float
+) -> tuple[float, float, float, float]:
+    """``nlerp(SCALAR, ...)`` with the ``where`` branches taken as ``if`` (bit-identical,
+    tested): one row's orientation look-up calls it twice."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    if ((aw * bw + ax * bx) + ay * by) + az * bz < 0.0:  # no NaN here: -b is -1.0 · b
+        bw, bx, by, bz = -bw, -bx, -by, -bz
+    w = aw + s * (bw - aw)
+    x = ax + s * (bx - ax)
+    y = ay + s * (by - ay)
+    z = az + s * (bz - az)
+    n = math.sqrt(((w * w + x * x) + y * y) + z * z)
+    if not n > 0.0:
+        n = NAN
+    return w / n, x / n, y / n, z / n
+
+
+def predict_scalar(
+    q: Sequence[float], w: Sequence[float], dw: Sequence[float], dt: float
+) -> tuple[float, float, float, float]:
+    """``predict(SCALAR, ...)`` with the ``where`` taken as ``if`` (bit-identical, tested)."""
+    h = 0.5 * dt
+    bx, by, bz = (w[0] + dw[0] * h) * h, (w[1] + dw[1] * h) * h, (w[2] + dw[2] * h) * h
+    aw, ax, ay, az = q
+    rw = aw - ((ax * bx + ay * by) + az * bz)
+    rx = (aw * bx + ax) + (ay * bz - az * by)
+    ry = (aw * by + ay) + (az * bx - ax * bz)
+    rz = (aw * bz + az) + (ax * by - ay * bx)
+    n = math.sqrt(((rw * rw + rx * rx) + ry * ry) + rz * rz)
+    if not n > 0.0:
+        n = NAN
+    return rw / n, rx / n, ry / n, rz / n
+
+
 class Heading(NamedTuple):
     """Heading offset per row and what follows from it (all (n,) or floats)."""
 
@@ -323,6 +359,14 @@ def unit(M: Any, v: Sequence[Any]) -> tuple[Any, ...]:
     x, y, z = v
     n = M.sqrt((x * x + y * y) + z * z)
     n = M.where(n > 0.0, n, NAN)
+    return x / n, y / n, z / n
+
+
+def unit_scalar(x: float, y: float, z: float) -> tuple[float, float, float]:
+    """``unit(SCALAR, (x, y, z))`` with the ``where`` taken as ``if`` (bit-identical, tested)."""
+    n = math.sqrt((x * x + y * y) + z * z)
+    if not n > 0.0:
+        n = NAN
     return x / n, y / n, z / n
 
 

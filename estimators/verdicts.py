@@ -148,6 +148,21 @@ class CycleJudge:
             self._data_t = float(tt[-1])
         return self._after_rows()
 
+    def push(
+        self, t: float, code: int, displacement: float, boundaries: Sequence[float]
+    ) -> list[CycleVerdict]:
+        """:meth:`update` of one row (the live case) as floats."""
+        col_t, col_c, col_d = self._cols
+        col_t.append(t)
+        col_c.append(code)
+        col_d.append(displacement)
+        self._data_t = t
+        for b in boundaries:
+            self._add_boundary(b)
+        if (self._pending and self._pending[0][1] <= t) or len(col_t) >= _FLUSH:
+            return self._after_rows()
+        return []
+
     def _flush(self) -> None:
         """Move the rows gathered as floats into the buffer."""
         if self._cols[0]:

@@ -229,3 +229,46 @@ def test_fused_angles_equal_generic(
             ]
         )
     _same(fused, vector)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.one_of(quats, st.tuples(wild, wild, wild, wild)),
+    st.one_of(quats, st.tuples(wild, wild, wild, wild)),
+    st.one_of(st.floats(0.0, 1.0), wild),
+)
+def test_fused_nlerp_equals_generic(a: tuple[float, ...], b: tuple[float, ...], s: float) -> None:
+    """Antipodal pairs, NaN, ±inf, zero and off-sphere quaternions, any weight."""
+    fused = rows.nlerp_scalar(a, b, s)
+    _same(fused, rows.nlerp(M_S, a, b, s))
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        col = rows.nlerp(M_V, [np.array([v]) for v in a], [np.array([v]) for v in b], np.array([s]))
+    _same(fused, np.concatenate(col))
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.one_of(quats, st.tuples(wild, wild, wild, wild)),
+    vec3,
+    vec3,
+    st.one_of(st.floats(0.0, 0.05), wild),
+)
+def test_fused_predict_equals_generic(
+    q: tuple[float, ...], w: tuple[float, ...], dw: tuple[float, ...], dt: float
+) -> None:
+    fused = rows.predict_scalar(q, w, dw, dt)
+    _same(fused, rows.predict(M_S, q, w, dw, dt))
+    arr = [[np.array([v]) for v in x] for x in (q, w, dw)]
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        col = rows.predict(M_V, *arr, np.array([dt]))
+    _same(fused, np.concatenate(col))
+
+
+@settings(max_examples=300, deadline=None)
+@given(vec3)
+def test_fused_unit_equals_generic(v: tuple[float, float, float]) -> None:
+    fused = rows.unit_scalar(*v)
+    _same(fused, rows.unit(M_S, v))
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        col = rows.unit(M_V, tuple(np.array([x]) for x in v))
+    _same(fused, np.concatenate(col))
