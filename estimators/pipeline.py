@@ -677,13 +677,15 @@ class Pipeline:
         ok_p, q_p, seg_p = self._imu.at(s - latency, asof)
         ok_n, q_n, seg_n = self._imu.at(s, asof)
         ok = ok_p and with_imu and ok_n and seg_n == seg_p
-        h, q_ra, x_now, x_a = rows.heading_arm_scalar(s, ok, snap, seg_p, q_n, q_p)
+        (_, h_std, h_conf, h_offset, h_good), q_ra, x_now, x_a = rows.heading_arm_scalar(
+            s, ok, snap, seg_p, q_n, q_p
+        )
         wrist, p_e, x_c = r[0:3], r[3:6], r[6:9]
         prev_t, prev = self._xc_prev_t, self._xc_prev
         self._xc_prev_t, self._xc_prev = t, x_c
         la = self._arm_len if k in self._arm_free else self._arm_length(t, p_e, k)
         sh = rows.shoulder(p_e, x_a, la)
-        nom = self._nominal_at(t, sh, h.good, k)
+        nom = self._nominal_at(t, sh, h_good, k)
         angle, disp, conv, elev, azim = rows.angles_scalar(
             x_now, x_c, p_e, sh, nom, p.displacement_norm
         )
@@ -691,10 +693,10 @@ class Pipeline:
             angle = self._angle(rows.SCALAR, x_now, x_a, x_c, prev, t - prev_t, latency)
         if not with_imu:
             self.quality.rows_without_imu += 1
-        good = 1.0 if h.good else 0.0
+        good = 1.0 if h_good else 0.0
         return [
-            t, *p_e, *sh, angle, h.offset_deg, good, disp, math.nan, *q_ra, h.std_deg,
-            h.confidence, elev, azim, *nom, conv, *wrist, la,
+            t, *p_e, *sh, angle, h_offset, good, disp, math.nan, *q_ra, h_std,
+            h_conf, elev, azim, *nom, conv, *wrist, la,
         ]  # fmt: skip
 
     def _rows_vector(self, t: Array, dec: list[tuple[bool, int, float]], block: Array) -> Array:

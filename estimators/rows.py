@@ -279,15 +279,18 @@ def heading_arm_scalar(
     seg: float,
     q_now: Sequence[float],
     q_pair: Sequence[float],
-) -> tuple[Heading, tuple[float, ...], tuple[float, ...], tuple[float, ...]]:
+) -> tuple[
+    tuple[float, float, float, float, bool], tuple[float, ...], tuple[float, ...], tuple[float, ...]
+]:
     """``heading(SCALAR, ...)`` then ``upper_arm(SCALAR, ...)`` for one row, the same
     expressions in the same order (bit-identical, tested) with the ``where`` branches taken
     as ``if``: the live pipeline computes one row per robot sample, where the generic
-    namespace's calls cost twice the arithmetic. Returns the heading, ``q_RA``, its x axis
-    now and ``x_A`` at the robot's instant."""
+    namespace's calls cost twice the arithmetic. Returns the heading as a plain tuple in
+    :class:`Heading`'s order (a named tuple costs as much as the rest of the heading),
+    ``q_RA``, its x axis now and ``x_A`` at the robot's instant."""
     _, d, rate, t_upd, std0, conv, sseg, _ = snap
     if not (ok and math.isfinite(d) and sseg == seg):
-        return Heading(NAN, NAN, 0.0, NAN, False), NAN4, NAN3, NAN3
+        return (NAN, NAN, 0.0, NAN, False), NAN4, NAN3, NAN3
     since = s - t_upd
     delta = d + rate * since
     if not since > 0.0:  # M.maximum(0.0, since): NaN stays NaN
@@ -300,9 +303,9 @@ def heading_arm_scalar(
     else:
         std_deg, conf = NAN, 0.0
     if not math.isfinite(delta):
-        return Heading(delta, std_deg, conf, NAN, False), NAN4, NAN3, NAN3
-    h = Heading(delta, std_deg, conf, (delta % TWO_PI) * RAD2DEG, conv > 0.0)
-    if not h.good:
+        return (delta, std_deg, conf, NAN, False), NAN4, NAN3, NAN3
+    h = (delta, std_deg, conf, (delta % TWO_PI) * RAD2DEG, conv > 0.0)
+    if not h[4]:
         return h, NAN4, NAN3, NAN3
     c, sn = math.cos(delta / 2.0), math.sin(delta / 2.0)
     w, x, y, z = q_now

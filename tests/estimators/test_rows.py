@@ -166,7 +166,7 @@ def test_fused_heading_arm_equals_generic(
     """The live row's fused form equals heading() then upper_arm() bit for bit, on floats
     and on arrays, whatever the snapshot holds (NaN, ±inf, updates in the future)."""
     h, q_ra, x_now, x_a = rows.heading_arm_scalar(s, ok, snap, seg, q_now, q_pair)
-    fused = (*h[:4], float(h.good), *q_ra, *x_now, *x_a)
+    fused = (*h[:4], float(h[4]), *q_ra, *x_now, *x_a)
     hs = rows.heading(M_S, s, ok, snap, seg)
     generic = (
         *hs[:4],
