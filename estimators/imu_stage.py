@@ -74,11 +74,13 @@ class ImuStage:
         # (pending row, t, ω_A) where dω's previous sample is not the row before: the first
         # pending piece and every segment start
         self._p_prev: list[tuple[int, float, tuple[float, ...]]] = []
-        # the newest samples in floats: q_IA (4 per sample), ω_A (3), dω_A (3), segment id
+        # the newest samples in floats: q_IA (4 per sample), ω_A (3), segment id; dω_A is
+        # worked out when a prediction asks for it (_dw), from these and the (t, ω_A,
+        # segment) of the sample before the first (None: there is none)
         self._mq: list[float] = []
         self._mw: list[float] = []
-        self._mdw: list[float] = []
         self._mseg: list[float] = []
+        self._mprev: tuple[float, tuple[float, ...], float] | None = None
 
     @property
     def t(self) -> Array:
@@ -201,26 +203,18 @@ class ImuStage:
         self._p_len.append(n)
         if n <= _FEW_SAMPLES:  # a message's few: Python floats beat numpy's per-call cost
             wl = w_a.ravel().tolist()
-            dw: list[float] = []
-            p0, p1, p2 = w0
-            for j, tj in enumerate(tl):
-                x, y, z = wl[3 * j : 3 * j + 3]
-                h = tj - t0
-                dw += ((x - p0) / h, (y - p1) / h, (z - p2) / h)
-                t0, p0, p1, p2 = tj, x, y, z
             self.w_prev = (tl[-1], (wl[-3], wl[-2], wl[-1]))
             self._mq += q_ia.ravel().tolist()
             self._mw += wl
-            self._mdw += dw
             self._mseg += [seg] * n
-        else:  # the mirror keeps the newest _MIRROR (< n) samples; _flush does all of dω
+        else:  # the mirror keeps the newest _MIRROR (< n) samples
             k = _MIRROR
-            dwa = (w_a[-k:] - w_a[-k - 1 : -1]) / (t[-k:] - t[-k - 1 : -1])[:, None]
-            self.w_prev = (tl[-1], tuple(w_a[-1].tolist()))
+            wl = w_a[-k - 1 :].ravel().tolist()
+            self.w_prev = (tl[-1], (wl[-3], wl[-2], wl[-1]))
             self._mq = q_ia[-k:].ravel().tolist()
-            self._mw = w_a[-k:].ravel().tolist()
-            self._mdw = dwa.ravel().tolist()
+            self._mw = wl[3:]
             self._mseg = [seg] * k
+            self._mprev = (tl[-k - 1], (wl[0], wl[1], wl[2]), seg)
         self.tl += tl
 
     def _flush(self) -> None:
@@ -267,11 +261,16 @@ class ImuStage:
             if i > len(self.buf):
                 self._flush()
             self.buf.drop(i)
+            extra = len(self._mseg) - (len(self.tl) - i)
+            if extra > 0:  # the mirror loses its oldest: the last of them is _mprev now
+                j = extra - 1
+                self._mprev = (
+                    self.tl[len(self.tl) - len(self._mseg) + j],
+                    tuple(self._mw[3 * j : 3 * j + 3]),
+                    self._mseg[j],
+                )
+                del self._mq[: 4 * extra], self._mw[: 3 * extra], self._mseg[:extra]
             del self.tl[:i]
-            extra = len(self._mseg) - len(self.tl)
-            if extra > 0:
-                del self._mq[: 4 * extra], self._mw[: 3 * extra], self._mdw[: 3 * extra]
-                del self._mseg[:extra]
 
     def _sample(self, i: int) -> tuple[list[float], list[float], list[float], float]:
         """Sample ``i``'s q_IA, ω_A, dω_A and segment id as floats: from the mirror, or
@@ -281,12 +280,29 @@ class ImuStage:
             return (
                 self._mq[4 * k : 4 * k + 4],
                 self._mw[3 * k : 3 * k + 3],
-                self._mdw[3 * k : 3 * k + 3],
+                self._dw(k),
                 self._mseg[k],
             )
         self._flush()
         r: list[float] = self.buf.a[self.buf.lo + i].tolist()
         return r[2:6], r[16:19], r[19:22], r[1]
+
+    def _dw(self, k: int) -> list[float]:
+        """dω_A of mirror sample ``k``: the backward difference ``_flush`` takes (the same
+        arithmetic), 0 at a segment's first sample (ω_A against itself, 1 s earlier)."""
+        tl, mw, mseg = self.tl, self._mw, self._mseg
+        j = len(tl) - len(mseg) + k
+        tj, seg = tl[j], mseg[k]
+        x, y, z = mw[3 * k : 3 * k + 3]
+        if k > 0 and mseg[k - 1] == seg:
+            t0 = tl[j - 1]
+            p0, p1, p2 = mw[3 * k - 3 : 3 * k]
+        elif k == 0 and self._mprev is not None and self._mprev[2] == seg:
+            t0, (p0, p1, p2), _ = self._mprev
+        else:
+            t0, p0, p1, p2 = tj - 1.0, x, y, z
+        h = tj - t0
+        return [(x - p0) / h, (y - p1) / h, (z - p2) / h]
 
     def smooth(self, g: Array, half: float) -> tuple[Idx, Array]:
         """Acceleration terms (v, u) at grid times ``g``, anti-aliased by a centred Hann

@@ -82,27 +82,37 @@ def test_any_split_into_pieces_holds_the_same_numbers(
 
 
 @settings(
-    max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+    max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
 )
 @given(
     s=st.floats(-0.5, 31.0),
-    behind=st.one_of(st.none(), st.floats(0.0, 0.3)),
+    asof=st.one_of(
+        st.none(),  # the IMU has reached the row
+        st.floats(-0.5, 31.0),
+        # a segment's first samples (after the long gap), the first after the trim, the
+        # bridged gap's ends, the newest few
+        st.sampled_from([21.0, 21.005, 21.01, 15.0, 15.005, 10.0, 10.05, 29.98, 29.99]),
+    ),
     piece=st.sampled_from([4, 13]),
-    trim=st.booleans(),
+    # (21.02 keeps the segment's first sample as the oldest: the mirror starts there)
+    trim=st.sampled_from([None, 15.0, 21.02]),
 )
 def test_single_time_lookup_equals_the_array_path(
-    imu: Arrays, s: float, behind: float | None, piece: int, trim: bool
+    imu: Arrays, s: float, asof: float | None, piece: int, trim: float | None
 ) -> None:
-    """``at`` (Python floats, the newest samples from the float mirror) against ``interp``
-    (arrays), inside a segment, across the gaps, before and after the data, and predicted
-    past ``asof``. Pieces of 4 are the live case; 13 leaves only the mirror's newest."""
+    """``at`` (Python floats, the newest samples from the float mirror, dω worked out there
+    when a prediction needs it) against ``interp`` (arrays from the buffer), inside a
+    segment, across the gaps, before and after the data, and predicted past ``asof``.
+    Pieces of 4 are the live case; 13 leaves only the mirror's newest."""
     t = imu[0]
     stage, _ = _fed(imu, list(range(piece, len(t), piece)))
-    if trim:
-        stage.trim(15.0)
-    asof = math.inf if behind is None else float(t[-1]) - behind
-    ok, q, seg = stage.at(s, asof)
-    oka, qa, sega = stage.interp(np.array([s]), np.array([asof]))
+    if trim is not None:
+        stage.trim(trim)
+        if trim == 21.02:
+            assert stage.tl[0] == 21.0  # the case's premise
+    a = math.inf if asof is None else asof
+    ok, q, seg = stage.at(s, a)
+    oka, qa, sega = stage.interp(np.array([s]), np.array([a]))
     assert ok == bool(oka[0])
     assert seg == float(sega[0])
     assert struct.pack("4d", *q) == struct.pack("4d", *(float(c[0]) for c in qa))
