@@ -11,6 +11,7 @@ import pytest
 from scipy import sparse
 
 from backend import wire
+from estimators import grid_stage
 from estimators import kinematics as kin
 from estimators import quaternion as quat
 from estimators.filters import LowPass, dc_group_delay_s
@@ -292,3 +293,27 @@ def test_smooth_without_the_compiled_product_is_the_same(
     for x, y, z in zip(fast, slow, ref, strict=True):
         assert x.tobytes() == y.tobytes() == z.tobytes()
     assert not fast[0].all() and fast[0].any()  # the reset at 30 s: both kinds of samples
+
+
+@pytest.mark.parametrize("drop", ["none", "imu"])
+def test_grid_without_the_compiled_filter_is_the_same(
+    short_session: Session, drop: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The public filter call (a scipy without ``_sosfilt``) gives the grid the same bits."""
+    p = PipelineParams()
+    imu, robot, q = ImuStage(p), RobotStage(p), Quality()
+    fast, ref = GridStage(p), _RefGrid(p)
+    for m in _messages(short_session, drop):
+        if isinstance(m, wire.ImuMessage):
+            imu.process(m.t, m.gyr, m.acc, q)
+        else:
+            robot.append(m.t.tolist(), m.elbow if m.elbow is not None else m.wrist, q)
+    until = robot.tl[-1]
+    fast.advance(imu, robot, until / 2)
+    monkeypatch.setattr(grid_stage, "_sosfilt", None)
+    slow = GridStage(p)
+    slow.advance(imu, robot, until / 2)
+    _same(slow, fast)
+    slow.advance(imu, robot, until)
+    ref.advance(imu, robot, until)
+    _same(slow, ref)
