@@ -248,18 +248,22 @@ class ImuStage:
         w = rows[:, self.W : self.W + 3]
         np.concatenate(self._p_w, out=w)
         # dω: the same backward difference as _run's (bit-identical), over all pieces at
-        # once: the row before, or where that is not the previous sample the (t, ω) _run took
-        prev_t = np.empty(n)
-        prev_t[1:] = rows[:-1, self.T]
-        prev_w = np.empty((n, 3))
-        prev_w[1:] = w[:-1]
+        # once: the row before, or where that is not the previous sample the (t, ω) _run took.
+        # The three axes as rows: one loop over the samples each (numpy loops over the
+        # buffer's (n, 3) column groups 3 elements at a time)
+        t = rows[:, self.T]
+        dt = np.empty(n)
+        dt[1:] = t[:-1]
+        dw = np.empty((3, n))
+        dw[:, 1:] = w[:-1].T
         for j, t0, w0 in self._p_prev:
-            prev_t[j], prev_w[j] = t0, w0
+            dt[j] = t0
+            dw[:, j] = w0
         del self._p_q[:], self._p_qs[:], self._p_acc[:], self._p_v[:], self._p_w[:]
         del self._p_seg[:], self._p_len[:], self._p_prev[:]
-        np.divide(
-            w - prev_w, (rows[:, self.T] - prev_t)[:, None], out=rows[:, self.DW : self.DW + 3]
-        )
+        np.subtract(t, dt, out=dt)
+        np.subtract(w.T, dw, out=dw)
+        np.divide(dw, dt, out=rows[:, self.DW : self.DW + 3].T)
 
     def trim(self, t_keep: float) -> None:
         i = max(0, bisect.bisect_left(self.tl, t_keep) - 2)
