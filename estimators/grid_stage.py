@@ -3,6 +3,7 @@ base, low-passed (§3.2.1), as windows for the heading updates."""
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Any, TypeAlias
 
@@ -15,9 +16,64 @@ from estimators.imu_stage import ImuStage
 from estimators.params import PipelineParams
 from estimators.robot_stage import RobotStage
 
+try:  # the compiled loop behind signal.sosfilt (as estimators.filters calls it)
+    from scipy.signal._sosfilt import _sosfilt
+except ImportError:  # pragma: no cover - a scipy that moved it: the public path
+    _sosfilt = None
+
 Array: TypeAlias = NDArray[np.float64]
 Idx: TypeAlias = NDArray[Any]  # integer and boolean arrays
 NCH = 18  # grid channels: v (3), u (3), sensor axes in I (9), robot elbow (3)
+
+
+def _filter(f: LowPass, x: Array, z: Array) -> None:
+    """``f`` along the rows of ``x`` (C, N), C-contiguous, in place, from and into the state
+    ``z`` (C, sections, 2): LowPass's compiled call without its two transposing copies (the
+    grid keeps its channels as rows)."""
+    if _sosfilt is None:  # pragma: no cover - a scipy that moved it: the public path
+        y, zf = f(x.T, z.transpose(1, 2, 0))
+        x[...] = y.T
+        z[...] = zf.transpose(2, 0, 1)
+    else:
+        _sosfilt(f.sos, x, z)
+
+
+def _state(f: LowPass, x0: Array) -> Array:
+    """:meth:`LowPass.initial_state` as :func:`_filter`'s (C, sections, 2)."""
+    return np.ascontiguousarray(f.initial_state(x0).transpose(2, 0, 1))
+
+
+class _Columns:
+    """The grid's output, one array per column group, rows dropped in front by moving
+    ``lo``. Each advance writes its rows straight into fresh arrays of exactly the new
+    size, as one concatenation per column did (without building the pieces first): with
+    spare capacity the whole live loop measured slower, though advance was not faster (an
+    effect of the allocator, likely). Arrays are replaced, never written twice: views
+    handed out stay valid."""
+
+    def __init__(self) -> None:
+        self.lo = self.hi = 0
+        self._alloc(0)
+
+    def _alloc(self, cap: int) -> None:
+        self.t = np.empty(cap)
+        self.a = np.empty((cap, 3))
+        self.b = np.empty((cap, 3))
+        self.pos = np.empty((cap, 3))
+        self.valid = np.empty(cap, dtype=bool)
+        self.seg = np.empty(cap, dtype=np.int64)
+        self.cl = np.empty((cap, 18))
+
+    def grow(self, m: int) -> int:
+        """``m`` more rows; returns where they start."""
+        old = (self.t, self.a, self.b, self.pos, self.valid, self.seg, self.cl)
+        live = self.hi - self.lo
+        self._alloc(live + m)
+        new = (self.t, self.a, self.b, self.pos, self.valid, self.seg, self.cl)
+        for src, dst in zip(old, new, strict=True):
+            dst[:live] = src[self.lo : self.hi]
+        self.lo, self.hi = 0, live + m
+        return live
 
 
 class GridStage:
@@ -40,24 +96,49 @@ class GridStage:
         self.lag = dc_group_delay_s(p.lowpass_order, p.lowpass_cutoff_hz, p.fusion_rate_hz)
         self.settle = int(math.ceil(3.0 * self.lag * p.fusion_rate_hz))
         self.k_next: int | None = None  # next grid index (time k·dt)
+        # filter states, channels first (:func:`_filter`)
         self.zi: Array | None = None
-        self.hist_y = np.empty((0, NCH))  # last two filtered rows (v, u, c, p)
-        self.hist_x = np.empty((0, NCH))  # ... and their raw values
-        self.hist_g = np.empty(0)
+        self.hist_y = np.empty((NCH, 0))  # last two filtered samples (v, u, c, p), channels first
+        self.hist_p = np.empty((0, 3))  # ... their robot elbow positions
+        self.hist_g = np.empty(0)  # ... and times
         self.since = 0
         self.imu_seg = -1
-        # aligned output buffer (time of sample k−1)
-        self.t = np.empty(0)
-        self.a = np.empty((0, 3))
-        self.b = np.empty((0, 3))
-        self.pos = np.empty((0, 3))
-        self.valid = np.empty(0, dtype=bool)
-        self.seg = np.empty(0, dtype=np.int64)
-        self.cl = np.empty((0, 18))  # sensor axes in I (9) and their second derivative (9)
+        self.out = _Columns()  # aligned output (time of sample k−1)
+
+    # the output's columns (views, valid while the caller holds them)
+    @property
+    def t(self) -> Array:
+        return self.out.t[self.out.lo : self.out.hi]
+
+    @property
+    def a(self) -> Array:
+        return self.out.a[self.out.lo : self.out.hi]
+
+    @property
+    def b(self) -> Array:
+        return self.out.b[self.out.lo : self.out.hi]
+
+    @property
+    def pos(self) -> Array:
+        return self.out.pos[self.out.lo : self.out.hi]
+
+    @property
+    def valid(self) -> Array:
+        return self.out.valid[self.out.lo : self.out.hi]
+
+    @property
+    def seg(self) -> Idx:
+        return self.out.seg[self.out.lo : self.out.hi]
+
+    @property
+    def cl(self) -> Array:
+        """Sensor axes in I (9) and their second derivative (9)."""
+        return self.out.cl[self.out.lo : self.out.hi]
 
     @property
     def frontier(self) -> float:
-        return float(self.t[-1]) if len(self.t) else -math.inf
+        out = self.out
+        return float(out.t[out.hi - 1]) if out.hi > out.lo else -math.inf
 
     def advance(self, imu: ImuStage, robot: RobotStage, until: float) -> None:
         if not imu.tl or not robot.tl:
@@ -78,75 +159,93 @@ class GridStage:
             ok_i, vu = imu.smooth(g, self.half)
         else:
             ok_i, vu = imu.interp_channels(g)
-        # (the buffer's time column: the same floats as imu.tl, without a list conversion)
-        segs = imu.segid[np.clip(np.searchsorted(imu.t, g), 0, len(imu.tl) - 1)]
+        segid = imu.segid
+        n = len(segid)
+        if segid[0] == segid[n - 1]:  # one IMU segment (ids only grow)
+            segs = None
+        else:
+            segs = segid[np.clip(np.searchsorted(imu.t, g), 0, n - 1)]
         ok_r, p = robot.interp(g)
         ok = ok_i & ok_r
-        x = np.concatenate((vu, p), axis=1)
-        parts: list[tuple[Array, Array, Array, Array, Idx, Idx, Array]] = []
-        # contiguous runs of valid samples within one IMU segment
-        brk = np.flatnonzero(np.diff(ok.astype(np.int8)) != 0) + 1
-        seg_brk = np.flatnonzero(np.diff(segs) != 0) + 1
-        bounds = np.unique(np.concatenate(([0], brk, seg_brk, [len(g)])))
-        for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+        ng = len(g)
+        # the channels as rows (v, u, c, p), filtered in place
+        x = np.empty((NCH, ng))
+        x[:15] = vu.T
+        x[15:] = p.T
+        if segs is None and ok.all():  # the usual advance: one run
+            bounds = [0, ng]
+        else:
+            # contiguous runs of valid samples within one IMU segment
+            if segs is None:
+                segs = np.full(ng, segid[0])
+            brk = np.flatnonzero(np.diff(ok.astype(np.int8)) != 0) + 1
+            seg_brk = np.flatnonzero(np.diff(segs) != 0) + 1
+            bounds = np.unique(np.concatenate(([0], brk, seg_brk, [ng]))).tolist()
+        for lo, hi in itertools.pairwise(bounds):
             if not ok[lo]:
                 self.zi = None
                 continue
-            xs = x[lo:hi]
-            if self.zi is None or int(segs[lo]) != self.imu_seg:
+            xs = x if hi - lo == ng else np.ascontiguousarray(x[:, lo:hi])
+            seg = int(segid[0] if segs is None else segs[lo])
+            if self.zi is None or seg != self.imu_seg:
                 # restart after a gap: steady state at the first value, wait for settling
-                self.zi = self.lp.initial_state(xs[0])
+                self.zi = _state(self.lp, xs[:, 0])
                 self.hp_zi = None
                 self.tilt_zi = None
-                self.hist_y = np.empty((0, NCH))
-                self.hist_x = np.empty((0, NCH))
+                self.hist_y = np.empty((NCH, 0))
+                self.hist_p = np.empty((0, 3))
+                self.hist_g = np.empty(0)
                 self.since = 0
-                self.imu_seg = int(segs[lo])
-            y, self.zi = self.lp(xs, self.zi)
-            yy = np.concatenate((self.hist_y, y))
-            xx = np.concatenate((self.hist_x, xs))
-            gg = np.concatenate((self.hist_g, g[lo:hi]))[-len(yy) :]
-            if len(yy) >= 3:
-                # second difference at k is centred at k−1: align everything to k−1
-                d2 = (yy[2:] - 2.0 * yy[1:-1] + yy[:-2]) / (self.dt * self.dt)
-                m = len(d2)
-                since = self.since + np.arange(1, m + 1)
-                # a (IMU side), b (robot side), then the bias channels (sensor axes in I)
-                # and the lever channels (their second derivative)
-                ab = np.concatenate(
-                    (yy[1:-1, 0:3] + d2[:, 3:6], d2[:, 15:18], yy[1:-1, 6:15], d2[:, 6:15]), axis=1
-                )
-                if self.tilt is not None:
-                    # the 6D filter levels itself on the slow part of a rotated bias: only
-                    # the faster part reaches the acceleration (VQF's tauAcc)
-                    if self.tilt_zi is None:
-                        self.tilt_zi = self.tilt.initial_state(ab[0, 6:15])
-                    ab[:, 6:15], self.tilt_zi = self.tilt(ab[:, 6:15], self.tilt_zi)
-                if self.hp is not None:
-                    if self.hp_zi is None:
-                        self.hp_zi = self.hp.initial_state(np.zeros(ab.shape[1]))
-                    ab, self.hp_zi = self.hp(ab, self.hp_zi)
-                parts.append(
-                    (
-                        gg[1:-1],
-                        ab[:, 0:3],
-                        ab[:, 3:6],
-                        xx[1:-1, 15:18],
-                        since > self.settle,
-                        np.full(m, self.imu_seg),
-                        ab[:, 6:24],
-                    )
-                )
-                self.since += m
-            self.hist_y, self.hist_x, self.hist_g = yy[-2:], xx[-2:], gg[-2:]
-        if parts:
-            self.t = np.concatenate([self.t, *(pt[0] for pt in parts)])
-            self.a = np.concatenate([self.a, *(pt[1] for pt in parts)])
-            self.b = np.concatenate([self.b, *(pt[2] for pt in parts)])
-            self.pos = np.concatenate([self.pos, *(pt[3] for pt in parts)])
-            self.valid = np.concatenate([self.valid, *(pt[4] for pt in parts)])
-            self.seg = np.concatenate([self.seg, *(pt[5] for pt in parts)])
-            self.cl = np.concatenate([self.cl, *(pt[6] for pt in parts)])
+                self.imu_seg = seg
+            _filter(self.lp, xs, self.zi)
+            yy = np.concatenate((self.hist_y, xs), axis=1)
+            pp = np.concatenate((self.hist_p, p[lo:hi]))
+            gg = np.concatenate((self.hist_g, g[lo:hi]))
+            if yy.shape[1] >= 3:
+                self._emit(yy, pp, gg)
+            self.hist_y, self.hist_p, self.hist_g = yy[:, -2:], pp[-2:], gg[-2:]
+
+    def _emit(self, yy: Array, pp: Array, gg: Array) -> None:
+        """Output rows from the filtered channels ``yy`` (18, L), L ≥ 3 (with the last two
+        of the previous call in front), their robot positions ``pp`` and times ``gg``."""
+        m = yy.shape[1] - 2
+        # second difference at k is centred at k−1: align everything to k−1. Only of the
+        # channels that use it (u, c, p); each as (y[k+1] − 2 y[k] + y[k−1]) / dt²
+        d2 = np.multiply(2.0, yy[3:, 1:-1])
+        np.subtract(yy[3:, 2:], d2, out=d2)
+        np.add(d2, yy[3:, :-2], out=d2)
+        np.divide(d2, self.dt * self.dt, out=d2)
+        # a (IMU side), b (robot side), then the bias channels (sensor axes in I) and the
+        # lever channels (their second derivative), as rows
+        ab = np.empty((24, m))
+        np.add(yy[0:3, 1:-1], d2[0:3], out=ab[0:3])
+        ab[3:6] = d2[12:15]
+        ab[6:15] = yy[6:15, 1:-1]
+        ab[15:24] = d2[3:12]
+        if self.tilt is not None:
+            # the 6D filter levels itself on the slow part of a rotated bias: only
+            # the faster part reaches the acceleration (VQF's tauAcc)
+            if self.tilt_zi is None:
+                self.tilt_zi = _state(self.tilt, ab[6:15, 0])
+            _filter(self.tilt, ab[6:15], self.tilt_zi)
+        if self.hp is not None:
+            if self.hp_zi is None:
+                self.hp_zi = _state(self.hp, np.zeros(24))
+            _filter(self.hp, ab, self.hp_zi)
+        out = self.out
+        i = out.grow(m)
+        j = i + m
+        out.t[i:j] = gg[1:-1]
+        out.a[i:j] = ab[0:3].T
+        out.b[i:j] = ab[3:6].T
+        out.pos[i:j] = pp[1:-1]
+        # valid once settled: since > settle, since counting 1, 2, … from the restart
+        k = min(max(self.settle - self.since, 0), m)
+        out.valid[i : i + k] = False
+        out.valid[i + k : j] = True
+        out.seg[i:j] = self.imu_seg
+        out.cl[i:j] = ab[6:24].T
+        self.since += m
 
     def window(self, t_end: float, span: float, seg: int) -> hd.Window:
         lo = int(np.searchsorted(self.t, t_end - span, side="right"))
@@ -156,8 +255,4 @@ class GridStage:
         return hd.Window(self.t[sl], self.a[sl], self.b[sl], self.pos[sl], valid, self.cl[sl])
 
     def trim(self, t_keep: float) -> None:
-        i = int(np.searchsorted(self.t, t_keep))
-        if i > 0:
-            self.t, self.a, self.b = self.t[i:], self.a[i:], self.b[i:]
-            self.pos, self.valid, self.seg = self.pos[i:], self.valid[i:], self.seg[i:]
-            self.cl = self.cl[i:]
+        self.out.lo += int(np.searchsorted(self.t, t_keep))

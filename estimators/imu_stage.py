@@ -242,18 +242,22 @@ class ImuStage:
         w = rows[:, self.W : self.W + 3]
         np.concatenate(self._p_w, out=w)
         # dω: the same backward difference as _run's (bit-identical), over all pieces at
-        # once: the row before, or where that is not the previous sample the (t, ω) _run took
-        prev_t = np.empty(n)
-        prev_t[1:] = rows[:-1, self.T]
-        prev_w = np.empty((n, 3))
-        prev_w[1:] = w[:-1]
+        # once: the row before, or where that is not the previous sample the (t, ω) _run took.
+        # The three axes as rows: one loop over the samples each (numpy loops over the
+        # buffer's (n, 3) column groups 3 elements at a time)
+        t = rows[:, self.T]
+        dt = np.empty(n)
+        dt[1:] = t[:-1]
+        dw = np.empty((3, n))
+        dw[:, 1:] = w[:-1].T
         for j, t0, w0 in self._p_prev:
-            prev_t[j], prev_w[j] = t0, w0
+            dt[j] = t0
+            dw[:, j] = w0
         del self._p_q[:], self._p_qs[:], self._p_acc[:], self._p_v[:], self._p_w[:]
         del self._p_seg[:], self._p_len[:], self._p_prev[:]
-        np.divide(
-            w - prev_w, (rows[:, self.T] - prev_t)[:, None], out=rows[:, self.DW : self.DW + 3]
-        )
+        np.subtract(t, dt, out=dt)
+        np.subtract(w.T, dw, out=dw)
+        np.divide(dw, dt, out=rows[:, self.DW : self.DW + 3].T)
 
     def trim(self, t_keep: float) -> None:
         i = max(0, bisect.bisect_left(self.tl, t_keep) - 2)
@@ -309,33 +313,62 @@ class ImuStage:
         kernel of half-width ``half`` (s). Centred, so it shifts nothing in time: a lag
         between the two sides would turn into a heading bias on circular paths.
         Returns ``(ok, x)`` with x (n, 6); ok where the whole kernel lies in one segment."""
-        t, segid = np.ascontiguousarray(self.t), self.segid
-        n, ng = len(t), len(g)
+        self._flush()
+        tl = self.tl
+        n, ng = len(tl), len(g)
         ts = self.ts or 0.01
         m = int(math.ceil(2.0 * half / ts)) + 2
         if n < m:
             return np.zeros(ng, bool), np.full((ng, 15), np.nan)
-        lo = np.clip(np.searchsorted(t, g - half, side="left"), 0, n - m)
-        idx = lo[:, None] + np.arange(m)[None, :]
-        tt = t[idx] - g[:, None]
-        w = np.where(np.abs(tt) < half, 0.5 + 0.5 * np.cos(np.pi * tt / half), 0.0)
-        wsum = w.sum(axis=1)
-        ok = (
-            (t[lo] <= g - half + ts)
-            & (t[lo + m - 1] >= g + half - ts)
-            & (segid[lo] == segid[lo + m - 1])
-            & (wsum > 0)
-        )
+        # Only the samples from the first kernel's on (the grid times ascend): searched
+        # there, with the clip's bound kept inside, they give the indices all samples give.
+        # (The buffer's times are tl's floats, and g[0] - half is gh[0].)
+        s0 = min(bisect.bisect_left(tl, float(g[0]) - half), n - m)
+        t = np.ascontiguousarray(self.buf.col(self.T)[s0:])
+        nt = n - s0
+        gh = g - half
+        lo = t.searchsorted(gh, side="left")
+        np.minimum(lo, nt - m, out=lo)  # np.clip(…, 0, nt − m): a searchsorted index is ≥ 0
+        idx = lo[:, None] + np.arange(m)
+        tt = t.take(idx)
+        np.subtract(tt, g[:, None], out=tt)
+        c = np.multiply(np.pi, tt)
+        np.divide(c, half, out=c)
+        np.cos(c, out=c)
+        np.multiply(0.5, c, out=c)
+        np.add(0.5, c, out=c)
+        w = np.where(np.abs(tt) < half, c, 0.0)
+        wsum = np.add.reduce(w, axis=1)  # = w.sum(axis=1)
+        last = lo + (m - 1)
+        ok = np.less_equal(t.take(lo), gh + ts)
+        ok &= t.take(last) >= g + half - ts
+        segid = self.buf.col(self.SEG)
+        if segid[s0] != segid[n - 1]:  # one segment: all equal
+            ok &= segid[s0:].take(lo) == segid[s0:].take(last)
+        ok &= wsum > 0
         base = int(lo.min())
-        x = self.channels(base, int(lo.max()) + m)
+        x = self.channels(s0 + base, s0 + int(lo.max()) + m)
         # the weighted sums as a sparse product: the same sequential sums as gathering
         # (ng, m, 15) windows and reducing them, without that array (26 MB for 8 minutes)
-        kernel = sparse.csr_matrix(
-            (w.ravel(), (idx - base).ravel(), np.arange(0, ng * m + 1, m)), shape=(ng, len(x))
-        )
+        try:  # the compiled loop behind a CSR matrix's product with a dense matrix
+            from scipy.sparse._sparsetools import csr_matvecs
+        except ImportError:  # pragma: no cover - a scipy that moved it: the public path
+            csr_matvecs = None
+        if csr_matvecs is None:
+            kernel = sparse.csr_matrix(
+                (w.ravel(), (idx - base).ravel(), np.arange(0, ng * m + 1, m)), shape=(ng, len(x))
+            )
+            acc = np.asarray(kernel @ x)
+        else:
+            # what that product runs (csr_matrix.__matmul__ → _matmul_multivector) without
+            # the constructor's checks and the operator's dispatch, which cost more here
+            acc = np.zeros((ng, 15))
+            np.subtract(idx, base, out=idx)
+            indptr = np.arange(0, ng * m + 1, m)
+            csr_matvecs(ng, len(x), 15, indptr, idx.ravel(), w.ravel(), x.ravel(), acc.ravel())
         with np.errstate(invalid="ignore", divide="ignore"):
-            out = np.asarray(kernel @ x) / wsum[:, None]
-        return ok, out
+            np.divide(acc, wsum[:, None], out=acc)
+        return ok, acc
 
     def channels(self, lo: int, hi: int) -> Array:
         """Fusion channels of samples ``lo:hi`` (n, 15): the acceleration term v (used as
@@ -343,15 +376,31 @@ class ImuStage:
         axes in I (for the bias and lever fits). Computed only when the grid needs them."""
         self._flush()
         rows = self.buf.view()[lo:hi]
+        n = len(rows)
         if self.p.method == "paper":
-            v = rows[:, self.V : self.V + 3]
-            return np.concatenate((v, np.zeros((len(v), 12))), axis=1)
-        c = quat.matrix_columns(rows[:, self.QS : self.QS + 4])
-        acc, r = rows[:, self.ACC : self.ACC + 3], self.r
-        cx, cy, cz = c[:, 0:3], c[:, 3:6], c[:, 6:9]
-        v = cx * acc[:, 0:1] + cy * acc[:, 1:2] + cz * acc[:, 2:3] - kin.GRAVITY
-        u = cx * r[0] + cy * r[1] + cz * r[2]
-        return np.concatenate((v, u, c), axis=1)
+            x = np.zeros((n, 15))
+            x[:, 0:3] = rows[:, self.V : self.V + 3]
+            return x
+        # Channel-major (15, n), transposed once at the end: each operation then runs over
+        # contiguous samples (over the buffer's (n, 3) column groups numpy loops 3 at a
+        # time). The operations are quat.matrix_columns's, then v's and u's, in their order.
+        w, x, y, z = rows[:, self.QS : self.QS + 4].T.copy()
+        out = np.empty((15, n))
+        c = out[6:15]  # the images of the sensor's x, y and z axes
+        np.subtract(1.0, 2.0 * (y * y + z * z), out=c[0])
+        np.multiply(2.0, x * y + w * z, out=c[1])
+        np.multiply(2.0, x * z - w * y, out=c[2])
+        np.multiply(2.0, x * y - w * z, out=c[3])
+        np.subtract(1.0, 2.0 * (x * x + z * z), out=c[4])
+        np.multiply(2.0, y * z + w * x, out=c[5])
+        np.multiply(2.0, x * z + w * y, out=c[6])
+        np.multiply(2.0, y * z - w * x, out=c[7])
+        np.subtract(1.0, 2.0 * (x * x + y * y), out=c[8])
+        a0, a1, a2 = rows[:, self.ACC : self.ACC + 3].T.copy()
+        cx, cy, cz, r = c[0:3], c[3:6], c[6:9], self.r
+        np.subtract(cx * a0 + cy * a1 + cz * a2, kin.GRAVITY[:, None], out=out[0:3])  # v
+        np.add(cx * r[0] + cy * r[1], cz * r[2], out=out[3:6])  # u
+        return out.T.copy()
 
     def _bracket(self, s: Array) -> tuple[Idx, Idx, Idx, Array]:
         t, segid = np.ascontiguousarray(self.t), self.segid
