@@ -11,6 +11,11 @@ from numpy.typing import NDArray
 from scipy import sparse
 from vqf import VQF
 
+try:  # the compiled loop behind a CSR matrix's product with a dense matrix
+    from scipy.sparse._sparsetools import csr_matvecs
+except ImportError:  # pragma: no cover - a scipy that moved it: the public product
+    csr_matvecs = None
+
 from estimators import kinematics as kin
 from estimators import quaternion as quat
 from estimators import rows
@@ -350,10 +355,6 @@ class ImuStage:
         x = self.channels(s0 + base, s0 + int(lo.max()) + m)
         # the weighted sums as a sparse product: the same sequential sums as gathering
         # (ng, m, 15) windows and reducing them, without that array (26 MB for 8 minutes)
-        try:  # the compiled loop behind a CSR matrix's product with a dense matrix
-            from scipy.sparse._sparsetools import csr_matvecs
-        except ImportError:  # pragma: no cover - a scipy that moved it: the public path
-            csr_matvecs = None
         if csr_matvecs is None:
             kernel = sparse.csr_matrix(
                 (w.ravel(), (idx - base).ravel(), np.arange(0, ng * m + 1, m)), shape=(ng, len(x))
