@@ -43,39 +43,6 @@ def _state(f: LowPass, x0: Array) -> Array:
     return np.ascontiguousarray(f.initial_state(x0).transpose(2, 0, 1))
 
 
-class _Columns:
-    """The grid's output, one array per column group, rows dropped in front by moving
-    ``lo``. Each advance writes its rows straight into fresh arrays of exactly the new
-    size, as one concatenation per column did (without building the pieces first): with
-    spare capacity the whole live loop measured slower, though advance was not faster (an
-    effect of the allocator, likely). Arrays are replaced, never written twice: views
-    handed out stay valid."""
-
-    def __init__(self) -> None:
-        self.lo = self.hi = 0
-        self._alloc(0)
-
-    def _alloc(self, cap: int) -> None:
-        self.t = np.empty(cap)
-        self.a = np.empty((cap, 3))
-        self.b = np.empty((cap, 3))
-        self.pos = np.empty((cap, 3))
-        self.valid = np.empty(cap, dtype=bool)
-        self.seg = np.empty(cap, dtype=np.int64)
-        self.cl = np.empty((cap, 18))
-
-    def grow(self, m: int) -> int:
-        """``m`` more rows; returns where they start."""
-        old = (self.t, self.a, self.b, self.pos, self.valid, self.seg, self.cl)
-        live = self.hi - self.lo
-        self._alloc(live + m)
-        new = (self.t, self.a, self.b, self.pos, self.valid, self.seg, self.cl)
-        for src, dst in zip(old, new, strict=True):
-            dst[:live] = src[self.lo : self.hi]
-        self.lo, self.hi = 0, live + m
-        return live
-
-
 class GridStage:
     """Both elbow accelerations on a uniform time base, low-passed (§3.2.1, step 5)."""
 
@@ -103,42 +70,19 @@ class GridStage:
         self.hist_g = np.empty(0)  # ... and times
         self.since = 0
         self.imu_seg = -1
-        self.out = _Columns()  # aligned output (time of sample k−1)
-
-    # the output's columns (views, valid while the caller holds them)
-    @property
-    def t(self) -> Array:
-        return self.out.t[self.out.lo : self.out.hi]
-
-    @property
-    def a(self) -> Array:
-        return self.out.a[self.out.lo : self.out.hi]
-
-    @property
-    def b(self) -> Array:
-        return self.out.b[self.out.lo : self.out.hi]
-
-    @property
-    def pos(self) -> Array:
-        return self.out.pos[self.out.lo : self.out.hi]
-
-    @property
-    def valid(self) -> Array:
-        return self.out.valid[self.out.lo : self.out.hi]
-
-    @property
-    def seg(self) -> Idx:
-        return self.out.seg[self.out.lo : self.out.hi]
-
-    @property
-    def cl(self) -> Array:
-        """Sensor axes in I (9) and their second derivative (9)."""
-        return self.out.cl[self.out.lo : self.out.hi]
+        # aligned output (time of sample k−1); each advance makes new arrays (views handed
+        # out stay valid). Growable arrays with spare capacity measured slower live.
+        self.t = np.empty(0)
+        self.a = np.empty((0, 3))
+        self.b = np.empty((0, 3))
+        self.pos = np.empty((0, 3))
+        self.valid = np.empty(0, dtype=bool)
+        self.seg = np.empty(0, dtype=np.int64)
+        self.cl = np.empty((0, 18))  # sensor axes in I (9) and their second derivative (9)
 
     @property
     def frontier(self) -> float:
-        out = self.out
-        return float(out.t[out.hi - 1]) if out.hi > out.lo else -math.inf
+        return float(self.t[-1]) if len(self.t) else -math.inf
 
     def advance(self, imu: ImuStage, robot: RobotStage, until: float) -> None:
         if not imu.tl or not robot.tl:
@@ -232,19 +176,17 @@ class GridStage:
             if self.hp_zi is None:
                 self.hp_zi = _state(self.hp, np.zeros(24))
             _filter(self.hp, ab, self.hp_zi)
-        out = self.out
-        i = out.grow(m)
-        j = i + m
-        out.t[i:j] = gg[1:-1]
-        out.a[i:j] = ab[0:3].T
-        out.b[i:j] = ab[3:6].T
-        out.pos[i:j] = pp[1:-1]
         # valid once settled: since > settle, since counting 1, 2, … from the restart
         k = min(max(self.settle - self.since, 0), m)
-        out.valid[i : i + k] = False
-        out.valid[i + k : j] = True
-        out.seg[i:j] = self.imu_seg
-        out.cl[i:j] = ab[6:24].T
+        valid = np.ones(m, dtype=bool)
+        valid[:k] = False
+        self.t = np.concatenate((self.t, gg[1:-1]))
+        self.a = np.concatenate((self.a, ab[0:3].T))
+        self.b = np.concatenate((self.b, ab[3:6].T))
+        self.pos = np.concatenate((self.pos, pp[1:-1]))
+        self.valid = np.concatenate((self.valid, valid))
+        self.seg = np.concatenate((self.seg, np.full(m, self.imu_seg)))
+        self.cl = np.concatenate((self.cl, ab[6:24].T))
         self.since += m
 
     def window(self, t_end: float, span: float, seg: int) -> hd.Window:
@@ -255,4 +197,8 @@ class GridStage:
         return hd.Window(self.t[sl], self.a[sl], self.b[sl], self.pos[sl], valid, self.cl[sl])
 
     def trim(self, t_keep: float) -> None:
-        self.out.lo += int(np.searchsorted(self.t, t_keep))
+        i = int(np.searchsorted(self.t, t_keep))
+        if i > 0:
+            self.t, self.a, self.b = self.t[i:], self.a[i:], self.b[i:]
+            self.pos, self.valid, self.seg = self.pos[i:], self.valid[i:], self.seg[i:]
+            self.cl = self.cl[i:]
