@@ -116,6 +116,14 @@ class RowQueue:
                 self._off = 0
         return out
 
+    def take_row(self) -> Sequence[float]:
+        """The oldest row, removed (:meth:`take_rows` of one, for the live case)."""
+        item = self._items[0]
+        if isinstance(item, tuple):
+            self._items.popleft()
+            return item
+        return self.take_rows(1)[0]
+
     def take_block(self, n: int) -> FloatArray:
         """The ``n`` oldest rows as one (n, width) array, removed."""
         parts: list[FloatArray] = []

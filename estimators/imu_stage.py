@@ -57,6 +57,7 @@ class ImuStage:
         self.ts: float | None = None
         self.probe: list[tuple[Array, Array, Array]] = []
         self.vqf: VQF | None = None
+        # the last sample's time, and gyro and accelerometer arrays whose last row it is
         self.last: tuple[float, Array, Array] | None = None
         self.seg = 0
         self.gyro_lp: LowPass | None = None
@@ -134,18 +135,19 @@ class ImuStage:
                     break
                 prev = x
             else:
-                self.last = (tl[-1], gyr[-1], acc[-1])  # message arrays are never written
+                # the message's arrays (never written), indexed only at the next gap
+                self.last = (tl[-1], gyr, acc)
                 self._run(t, gyr, acc, tl)
                 return
         # gaps: bridge short ones by interpolation, reset on long ones
         if self.last is not None:
             t = np.concatenate(([self.last[0]], t))
-            gyr = np.concatenate((self.last[1][None], gyr))
-            acc = np.concatenate((self.last[2][None], acc))
+            gyr = np.concatenate((self.last[1][-1:], gyr))
+            acc = np.concatenate((self.last[2][-1:], acc))
             start = 1
         else:
             start = 0
-        self.last = (float(t[-1]), gyr[-1].copy(), acc[-1].copy())
+        self.last = (float(t[-1]), gyr[-1:].copy(), acc[-1:].copy())
         dts = np.diff(t)
         for gi in np.flatnonzero(dts > 2.5 * ts):
             gap = float(dts[gi])
@@ -174,7 +176,10 @@ class ImuStage:
         if n == 0:
             return
         assert self.vqf is not None
-        out = self.vqf.updateBatch(np.ascontiguousarray(gyr), np.ascontiguousarray(acc))
+        try:  # decoded messages are C-contiguous float64 already: no conversion calls
+            out = self.vqf.updateBatch(gyr, acc)
+        except ValueError:  # VQF takes only those
+            out = self.vqf.updateBatch(np.ascontiguousarray(gyr), np.ascontiguousarray(acc))
         q_is = out["quat6D"]
         tl = t.tolist() if tl is None else tl
         q_ia = q_is if self.identity_mount else quat.mul(q_is, self.mount)

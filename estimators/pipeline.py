@@ -648,7 +648,7 @@ class Pipeline:
         """:meth:`_rows` of the one row ``i`` (the live case): each stage's single-sample
         entry, floats only up to the row's matrix."""
         t = self._row_t[i]
-        r = self._rowq.take_rows(1)[0]
+        r = self._rowq.take_row()
         row = self._row(t, self._decisions[i], r)
         d = row[_DISP]
         boundaries = self._segmenter.push(t, r[0], r[1])
@@ -658,9 +658,12 @@ class Pipeline:
         episodes = self._episodes.push(t, code, d)
         # (not np.frombuffer of an array.array, though faster: its base objects would be
         # tracked by the cyclic collector as long as the rows live)
-        m = np.fromiter(row, np.float64, NCOL).reshape(1, NCOL)  # np.array: 1.5x
+        m = np.fromiter(row, np.float64, NCOL)[None]  # (reshape and np.array cost more)
         return Output(
-            RowTable(m, ONE_CODE[code].copy()), _feedback(changes, verdicts), verdicts, episodes
+            RowTable(m, _ONE_STATE[code]),
+            _feedback(changes, verdicts) if changes or verdicts else [],
+            verdicts,
+            episodes,
         )
 
     def _row(self, t: float, dec: tuple[bool, int, float], r: Sequence[float]) -> list[float]:
@@ -826,6 +829,9 @@ class Pipeline:
             self._arm_pts.append(np.array(p_e))
             return self._arm_len
         self._arm_spec_done = k
+        # its later rows take _arm_len as it is now: later specs' rows come after them all
+        # (a row's spec is the newest whose time has come), so a new measurement misses them
+        self._arm_free.add(k)
         pts = np.array(self._arm_pts)
         self._arm_pts = []
         if len(pts) >= 3 and float(np.max(np.std(pts, axis=0))) < 0.01:
@@ -926,6 +932,10 @@ def _kind_of(msg: Any) -> str:
 _COINCIDENT_M2 = 1e-12  # squared cuff distance, m², below which the cuffs coincide
 _SMALL = 16  # up to this many rows or samples per call take the Python-float path
 _TRIM_EVERY_S = 2.0  # s of robot data between two trims (1 s: +2 % CPU; 5 s: +10 % memory)
+# a one-row table's state column, shared by all such tables (read-only, as the table is)
+_ONE_STATE = {c: a.copy() for c, a in ONE_CODE.items()}
+for _a in _ONE_STATE.values():
+    _a.flags.writeable = False
 NAN3 = (math.nan,) * 3
 NAN8 = (math.nan,) * 8
 _DISP = COL["shoulder_displacement_m"]

@@ -23,44 +23,59 @@ class RobotStage:
     def __init__(self, p: PipelineParams) -> None:
         self.p = p
         self.buf = RowBuffer(5)  # t, segment id, p_E (3)
-        self.tail: list[tuple[float, ...]] = []  # rows not yet in buf (one by one: cheaper)
+        self.tail: list[float] = []  # rows not yet in buf, end to end (one by one: cheaper)
         self.tl: list[float] = []
         self.seg = 0
 
     def _flush(self) -> None:
         if self.tail:
-            self.buf.append(np.array(self.tail, dtype=np.float64))
+            tail = self.tail
+            self.buf.append(np.fromiter(tail, np.float64, len(tail)).reshape(-1, 5))
             self.tail = []
 
     def append(self, s: list[float], p_e: Any, q: Quality) -> None:
         """Samples at physical times ``s``; ``p_e`` (n, 3) array or n float triples."""
         seg = self.seg
-        segs: list[int] = []
         prev = self.tl[-1] if self.tl else None
         bridge = self.p.robot_max_bridge_s
+        if isinstance(p_e, list):  # a message's few: rows as floats, one flat list
+            tail = self.tail
+            for x, e in zip(s, p_e, strict=True):
+                if prev is not None:
+                    d = x - prev
+                    if d > bridge:
+                        seg = self._gap(prev, d, seg, q)
+                    elif d > _BRIDGED_S:
+                        q.robot_bridged_gaps += 1
+                tail += (x, seg, *e)
+                prev = x
+            self.seg = seg
+            self.tl += s
+            return
+        segs: list[int] = []
         for x in s:
             if prev is not None:
                 d = x - prev
                 if d > bridge:
-                    q.robot_gaps += 1
-                    q.gaps.append({"stream": "robot", "t": prev, "duration_s": d})
-                    seg += 1
-                elif d > 2.5 / 25.0:
+                    seg = self._gap(prev, d, seg, q)
+                elif d > _BRIDGED_S:
                     q.robot_bridged_gaps += 1
             segs.append(seg)
             prev = x
         self.seg = seg
-        if isinstance(p_e, list):
-            for x, g, e in zip(s, segs, p_e, strict=True):
-                self.tail.append((x, g, *e))
-        else:
-            self._flush()
-            rows = np.empty((len(s), 5))
-            rows[:, 0] = s
-            rows[:, 1] = segs
-            rows[:, 2:5] = p_e
-            self.buf.append(rows)
+        self._flush()
+        rows = np.empty((len(s), 5))
+        rows[:, 0] = s
+        rows[:, 1] = segs
+        rows[:, 2:5] = p_e
+        self.buf.append(rows)
         self.tl.extend(s)
+
+    @staticmethod
+    def _gap(prev: float, d: float, seg: int, q: Quality) -> int:
+        q.robot_gaps += 1
+        q.gaps.append({"stream": "robot", "t": prev, "duration_s": d})
+        return seg + 1
 
     def interp(self, g: Array) -> tuple[Idx, Array]:
         n = len(self.tl)
@@ -69,7 +84,8 @@ class RobotStage:
         self._flush()
         v = self.buf.view()
         t, segid, p_e = np.ascontiguousarray(v[:, 0]), v[:, 1], v[:, 2:5]
-        i1 = np.clip(np.searchsorted(t, g, side="left"), 1, n - 1)
+        i1 = np.searchsorted(t, g, side="left")
+        np.minimum(np.maximum(i1, 1, out=i1), n - 1, out=i1)  # np.clip's (ints): 4x cheaper
         i0 = i1 - 1
         ok = (g >= t[0]) & (g <= t[-1]) & (segid[i0] == segid[i1])
         w = np.clip((g - t[i0]) / (t[i1] - t[i0]), 0.0, 1.0)
@@ -81,3 +97,6 @@ class RobotStage:
             self._flush()
             self.buf.drop(i)
             del self.tl[:i]
+
+
+_BRIDGED_S = 2.5 / 25.0  # s between robot samples counted as a bridged gap
