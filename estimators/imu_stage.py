@@ -205,7 +205,8 @@ class ImuStage:
         if fresh or not self._p_len:
             self._p_prev.append((len(self.tl) - len(self.buf), t0, w0))
         self._p_q.append(q_ia)
-        self._p_qs.append(q_is)
+        if not self.identity_mount:  # else q_IS is q_IA (_flush copies that column group)
+            self._p_qs.append(q_is)
         self._p_acc.append(acc)
         self._p_v.append(v)
         self._p_w.append(w_a)

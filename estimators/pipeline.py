@@ -586,7 +586,12 @@ class Pipeline:
             el = None if elbow is None else elbow.tolist()
             pes: list[tuple[float, ...]] = []
             for j, (w, p) in enumerate(zip(wl, pl, strict=True)):
-                xc = rows.unit_scalar(w[0] - p[0], w[1] - p[1], w[2] - p[2])
+                # rows.unit_scalar written out (per live robot sample)
+                x, y, z = w[0] - p[0], w[1] - p[1], w[2] - p[2]
+                nrm = math.sqrt((x * x + y * y) + z * z)
+                if not nrm > 0.0:
+                    nrm = math.nan
+                xc = (x / nrm, y / nrm, z / nrm)
                 pe = (p[0] - lp * xc[0], p[1] - lp * xc[1], p[2] - lp * xc[2])
                 if el is not None:
                     pe = tuple(e if math.isfinite(e) else v for e, v in zip(el[j], pe, strict=True))
