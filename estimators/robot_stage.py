@@ -35,34 +35,13 @@ class RobotStage:
 
     def append(self, s: list[float], p_e: Any, q: Quality) -> None:
         """Samples at physical times ``s``; ``p_e`` (n, 3) array or n float triples."""
-        seg = self.seg
-        prev = self.tl[-1] if self.tl else None
-        bridge = self.p.robot_max_bridge_s
+        segs = self._segments(s, q)
         if isinstance(p_e, list):  # a message's few: rows as floats, one flat list
             tail = self.tail
-            for x, e in zip(s, p_e, strict=True):
-                if prev is not None:
-                    d = x - prev
-                    if d > bridge:
-                        seg = self._gap(prev, d, seg, q)
-                    elif d > _BRIDGED_S:
-                        q.robot_bridged_gaps += 1
-                tail += (x, seg, *e)
-                prev = x
-            self.seg = seg
+            for x, g, e in zip(s, segs, p_e, strict=True):
+                tail += (x, g, *e)
             self.tl += s
             return
-        segs: list[int] = []
-        for x in s:
-            if prev is not None:
-                d = x - prev
-                if d > bridge:
-                    seg = self._gap(prev, d, seg, q)
-                elif d > _BRIDGED_S:
-                    q.robot_bridged_gaps += 1
-            segs.append(seg)
-            prev = x
-        self.seg = seg
         self._flush()
         rows = np.empty((len(s), 5))
         rows[:, 0] = s
@@ -71,11 +50,26 @@ class RobotStage:
         self.buf.append(rows)
         self.tl.extend(s)
 
-    @staticmethod
-    def _gap(prev: float, d: float, seg: int, q: Quality) -> int:
-        q.robot_gaps += 1
-        q.gaps.append({"stream": "robot", "t": prev, "duration_s": d})
-        return seg + 1
+    def _segments(self, s: list[float], q: Quality) -> list[int]:
+        """Segment ids of samples at times ``s``: a new one after each gap longer than
+        ``robot_max_bridge_s`` (counted, as the shorter bridged ones are)."""
+        seg = self.seg
+        segs: list[int] = []
+        prev = self.tl[-1] if self.tl else None
+        bridge = self.p.robot_max_bridge_s
+        for x in s:
+            if prev is not None:
+                d = x - prev
+                if d > bridge:
+                    q.robot_gaps += 1
+                    q.gaps.append({"stream": "robot", "t": prev, "duration_s": d})
+                    seg += 1
+                elif d > _BRIDGED_S:
+                    q.robot_bridged_gaps += 1
+            segs.append(seg)
+            prev = x
+        self.seg = seg
+        return segs
 
     def interp(self, g: Array) -> tuple[Idx, Array]:
         n = len(self.tl)
