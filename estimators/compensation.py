@@ -110,7 +110,10 @@ def displacement(shoulder: ArrayLike, nominal: ArrayLike, norm: Norm = "horizont
     return out
 
 
+# one sample's state as an array, shared (read-only: who needs to write takes a copy)
 ONE_CODE = {c: np.array([c], dtype=np.int8) for c in (UNKNOWN, OK, OUTSIDE, WARNING)}
+for _a in ONE_CODE.values():
+    _a.flags.writeable = False
 
 
 def state_name(code: int) -> str | None:

@@ -586,12 +586,7 @@ class Pipeline:
             el = None if elbow is None else elbow.tolist()
             pes: list[tuple[float, ...]] = []
             for j, (w, p) in enumerate(zip(wl, pl, strict=True)):
-                # rows.unit_scalar written out (per live robot sample)
-                x, y, z = w[0] - p[0], w[1] - p[1], w[2] - p[2]
-                nrm = math.sqrt((x * x + y * y) + z * z)
-                if not nrm > 0.0:
-                    nrm = math.nan
-                xc = (x / nrm, y / nrm, z / nrm)
+                xc = rows.unit_scalar(w[0] - p[0], w[1] - p[1], w[2] - p[2])
                 pe = (p[0] - lp * xc[0], p[1] - lp * xc[1], p[2] - lp * xc[2])
                 if el is not None:
                     pe = tuple(e if math.isfinite(e) else v for e, v in zip(el[j], pe, strict=True))
@@ -665,7 +660,7 @@ class Pipeline:
         # tracked by the cyclic collector as long as the rows live)
         m = np.fromiter(row, np.float64, NCOL)[None]  # (reshape and np.array cost more)
         return Output(
-            RowTable(m, _ONE_STATE[code]),
+            RowTable(m, ONE_CODE[code]),  # shared: read-only, as the table is
             _feedback(changes, verdicts) if changes or verdicts else [],
             verdicts,
             episodes,
@@ -937,10 +932,6 @@ def _kind_of(msg: Any) -> str:
 _COINCIDENT_M2 = 1e-12  # squared cuff distance, m², below which the cuffs coincide
 _SMALL = 16  # up to this many rows or samples per call take the Python-float path
 _TRIM_EVERY_S = 2.0  # s of robot data between two trims (1 s: +2 % CPU; 5 s: +10 % memory)
-# a one-row table's state column, shared by all such tables (read-only, as the table is)
-_ONE_STATE = {c: a.copy() for c, a in ONE_CODE.items()}
-for _a in _ONE_STATE.values():
-    _a.flags.writeable = False
 NAN3 = (math.nan,) * 3
 NAN8 = (math.nan,) * 8
 _DISP = COL["shoulder_displacement_m"]

@@ -29,8 +29,8 @@ class RobotStage:
 
     def _flush(self) -> None:
         if self.tail:
-            tail = self.tail
-            self.buf.append(np.fromiter(tail, np.float64, len(tail)).reshape(-1, 5))
+            rows = np.fromiter(self.tail, np.float64, len(self.tail)).reshape(-1, 5)
+            self.buf.append(rows)
             self.tail = []
 
     def append(self, s: list[float], p_e: Any, q: Quality) -> None:
@@ -40,7 +40,7 @@ class RobotStage:
             tail = self.tail
             for x, g, e in zip(s, segs, p_e, strict=True):
                 tail += (x, g, *e)
-            self.tl += s
+            self.tl.extend(s)
             return
         self._flush()
         rows = np.empty((len(s), 5))

@@ -325,6 +325,10 @@ def heading_arm_scalar(
     )
 
 
+def _s_acos_deg(c: float) -> float:
+    return math.acos(-1.0 if c < -1.0 else 1.0 if c > 1.0 else c) * RAD2DEG  # NaN passes
+
+
 def angles_scalar(
     x_now: Sequence[float],
     x_c: Sequence[float],
@@ -336,10 +340,7 @@ def angles_scalar(
     """For one row, with the expressions of the generic functions (bit-identical, tested):
     ``angle_deg(x_now, x_c)``, ``displacement(sh, nom)``, ``conventional_angle(p_e, nom,
     x_c)`` and ``elevation_azimuth(x_now)``."""
-    # acos of the clipped cosine (NaN passes, as np.clip), in °, written out: three per row
-    acos = math.acos
-    c = (x_now[0] * x_c[0] + x_now[1] * x_c[1]) + x_now[2] * x_c[2]
-    angle = acos(-1.0 if c < -1.0 else 1.0 if c > 1.0 else c) * RAD2DEG
+    angle = _s_acos_deg((x_now[0] * x_c[0] + x_now[1] * x_c[1]) + x_now[2] * x_c[2])
     dx, dy, dz = sh[0] - nom[0], sh[1] - nom[1], sh[2] - nom[2]
     sq = dx * dx + dy * dy
     if norm == "3d":
@@ -348,10 +349,8 @@ def angles_scalar(
     n = math.sqrt((x * x + y * y) + z * z)
     if not n > 0.0:
         n = NAN
-    c = ((x / n) * x_c[0] + (y / n) * x_c[1]) + (z / n) * x_c[2]
-    conv = acos(-1.0 if c < -1.0 else 1.0 if c > 1.0 else c) * RAD2DEG
-    c = -x_now[2]
-    elev = acos(-1.0 if c < -1.0 else 1.0 if c > 1.0 else c) * RAD2DEG
+    conv = _s_acos_deg(((x / n) * x_c[0] + (y / n) * x_c[1]) + (z / n) * x_c[2])
+    elev = _s_acos_deg(-x_now[2])
     return angle, math.sqrt(sq), conv, elev, math.atan2(x_now[0], x_now[1]) * RAD2DEG
 
 
