@@ -23,7 +23,7 @@ import bisect
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal, TypeAlias
+from typing import Literal, SupportsFloat, TypeAlias
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -188,7 +188,7 @@ class Indicator:
         t: ArrayLike,
         displacement: ArrayLike,
         tolerated_s: float | None = None,
-        boundaries: Sequence[float] = (),
+        boundaries: Sequence[SupportsFloat] = (),
     ) -> tuple[CodeArray, list[tuple[float, str]]]:
         """Classify a chunk.
 
@@ -226,7 +226,7 @@ class Indicator:
         self,
         t: float,
         displacement: float,
-        boundaries: Sequence[float],
+        boundaries: Sequence[SupportsFloat],
         changes: list[tuple[float, str]],
     ) -> int:
         """:meth:`update` of one sample (the live case) as floats: its code; its
@@ -235,7 +235,8 @@ class Indicator:
             self._take_boundaries(boundaries)
         return self._step(t, displacement, self.params.warning_after_s, changes)
 
-    def _take_boundaries(self, boundaries: Sequence[float]) -> None:
+    def _take_boundaries(self, boundaries: Sequence[SupportsFloat]) -> None:
+        # (SupportsFloat, not float: a compiled build unboxes floats, a Boundary's extras too)
         for b in boundaries:
             cs = getattr(b, "cycle_start", None)
             if cs is not None:

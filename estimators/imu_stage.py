@@ -44,7 +44,15 @@ class ImuStage:
     # buffer columns: t, segment id, q_IA (4), the 6D filter's sensor orientation q_IS (4),
     # specific force in the sensor frame (3), paper method's eq. 1–2 acceleration (3), the
     # gyro in frame A and its backward difference (3 + 3: predict q_IA past the newest sample)
-    T, SEG, Q, QS, ACC, V, W, DW, WIDTH = 0, 1, 2, 6, 10, 13, 16, 19, 22
+    T = 0
+    SEG = 1
+    Q = 2  # 4
+    QS = 6  # 4
+    ACC = 10  # 3
+    V = 13  # 3
+    W = 16  # 3
+    DW = 19  # 3
+    WIDTH = 22
 
     def __init__(self, p: PipelineParams) -> None:
         self.p = p

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from types import SimpleNamespace
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -61,23 +62,26 @@ def _s_trig(f: Callable[[float], float]) -> Callable[[float], float]:
     return g
 
 
-class _Scalar:
-    """Namespace for Python floats and bools."""
+def _s_not(a: bool) -> bool:
+    return not a
 
-    where = staticmethod(_s_where)
-    maximum = staticmethod(_s_maximum)
-    clip = staticmethod(_s_clip)
-    mod = staticmethod(_s_mod)
-    atan2 = staticmethod(_s_atan2)
-    cos = staticmethod(_s_trig(math.cos))
-    sin = staticmethod(_s_trig(math.sin))
-    acos = staticmethod(math.acos)  # only ever given clipped input
-    sqrt = staticmethod(math.sqrt)  # only ever given sums of squares
-    isfinite = staticmethod(math.isfinite)
 
-    @staticmethod
-    def not_(a: bool) -> bool:
-        return not a
+# The two namespaces are plain objects, not classes of static methods: the same attribute
+# calls, and a compiled build (scripts/build_native.py) keeps them as they are.
+SCALAR: Any = SimpleNamespace(
+    where=_s_where,
+    maximum=_s_maximum,
+    clip=_s_clip,
+    mod=_s_mod,
+    atan2=_s_atan2,
+    cos=_s_trig(math.cos),
+    sin=_s_trig(math.sin),
+    acos=math.acos,  # only ever given clipped input
+    sqrt=math.sqrt,  # only ever given sums of squares
+    isfinite=math.isfinite,
+    not_=_s_not,
+)
+"""Namespace for Python floats and bools."""
 
 
 def _v_map(f: Callable[..., float], *a: Any) -> Any:
@@ -97,45 +101,31 @@ def _v_trig(f: Callable[[float], float], x: Any) -> Any:
     return out
 
 
-class _Vector:
-    """Namespace for numpy arrays of shape (n,), bit-identical to :class:`_Scalar`."""
-
-    where = staticmethod(np.where)
-    maximum = staticmethod(np.maximum)
-    clip = staticmethod(np.clip)
-    sqrt = staticmethod(np.sqrt)  # correctly rounded, as math.sqrt
-    isfinite = staticmethod(np.isfinite)
-
-    @staticmethod
-    def mod(x: Any, m: float) -> Any:
-        # np.remainder is Python's float % (fmod, exact, then the same sign fix-up)
-        a = np.asarray(x, dtype=np.float64)
-        with np.errstate(invalid="ignore"):
-            return np.where(np.isfinite(a), np.remainder(a, m), NAN)
-
-    @staticmethod
-    def atan2(y: Any, x: Any) -> Any:
-        return _v_map(math.atan2, y, x)
-
-    @staticmethod
-    def cos(x: Any) -> Any:
-        return _v_trig(math.cos, x)
-
-    @staticmethod
-    def sin(x: Any) -> Any:
-        return _v_trig(math.sin, x)
-
-    @staticmethod
-    def acos(x: Any) -> Any:
-        return _v_map(math.acos, x)
-
-    @staticmethod
-    def not_(a: Any) -> Any:
-        return ~a
+def _v_mod(x: Any, m: float) -> Any:
+    # np.remainder is Python's float % (fmod, exact, then the same sign fix-up)
+    a = np.asarray(x, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isfinite(a), np.remainder(a, m), NAN)
 
 
-SCALAR: Any = _Scalar
-VECTOR: Any = _Vector
+def _v_not(a: Any) -> Any:
+    return ~a
+
+
+VECTOR: Any = SimpleNamespace(
+    where=np.where,
+    maximum=np.maximum,
+    clip=np.clip,
+    sqrt=np.sqrt,  # correctly rounded, as math.sqrt
+    isfinite=np.isfinite,
+    mod=_v_mod,
+    atan2=lambda y, x: _v_map(math.atan2, y, x),
+    cos=lambda x: _v_trig(math.cos, x),
+    sin=lambda x: _v_trig(math.sin, x),
+    acos=lambda x: _v_map(math.acos, x),
+    not_=_v_not,
+)
+"""Namespace for numpy arrays of shape (n,), bit-identical to ``SCALAR``."""
 
 
 def nlerp(M: Any, a: Sequence[Any], b: Sequence[Any], s: Any) -> tuple[Any, ...]:

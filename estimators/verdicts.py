@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import SupportsFloat
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -99,7 +100,7 @@ class CycleJudge:
         self,
         t: ArrayLike,
         codes: ArrayLike,
-        boundaries: Sequence[float] = (),
+        boundaries: Sequence[SupportsFloat] = (),
         displacement: ArrayLike | None = None,
     ) -> list[CycleVerdict]:
         if isinstance(t, list) and len(t) <= _SMALL:
@@ -149,7 +150,7 @@ class CycleJudge:
         return self._after_rows()
 
     def push(
-        self, t: float, code: int, displacement: float, boundaries: Sequence[float]
+        self, t: float, code: int, displacement: float, boundaries: Sequence[SupportsFloat]
     ) -> list[CycleVerdict]:
         """:meth:`update` of one row (the live case) as floats."""
         col_t, col_c, col_d = self._cols
@@ -181,7 +182,8 @@ class CycleJudge:
         self._trim()
         return verdicts
 
-    def _add_boundary(self, b: float) -> None:
+    def _add_boundary(self, b: SupportsFloat) -> None:
+        # (SupportsFloat, not float: a compiled build unboxes floats, a Boundary's extras too)
         bt = float(b)
         if not math.isfinite(bt) or (self._last_b is not None and bt <= self._last_b):
             return

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 from importlib.metadata import PackageNotFoundError, version
+from typing import Literal
 
 from fastapi import APIRouter
 from sqlalchemy import text
 
+import estimators
 from backend.deps import DB
 from backend.schemas.health import HealthOut
 
@@ -20,8 +22,11 @@ except PackageNotFoundError:  # running from a source tree that was never instal
 
 @router.get("/health")
 async def health(db: DB) -> HealthOut:
+    kind: Literal["compiled", "interpreted"] = "compiled" if estimators.NATIVE else "interpreted"
     try:
         await db.execute(text("SELECT 1"))
     except Exception:  # any driver error means the same thing to a health check
-        return HealthOut(status="degraded", version=_VERSION, database="unreachable")
-    return HealthOut(status="ok", version=_VERSION, database="ok")
+        return HealthOut(
+            status="degraded", version=_VERSION, database="unreachable", estimators=kind
+        )
+    return HealthOut(status="ok", version=_VERSION, database="ok", estimators=kind)

@@ -11,6 +11,7 @@ import pytest
 from fastapi import FastAPI
 from fastapi.routing import APIRoute
 
+import estimators
 from backend.auth.guards import OverlayDenied, verify_overlay_token
 from backend.db.base import utcnow
 from backend.db.devices import touch_device
@@ -68,8 +69,9 @@ async def test_docs_and_health_are_public(client: httpx.AsyncClient) -> None:
     assert (await client.get("/api/docs")).status_code == 200
     health = await client.get("/api/health")
     assert health.status_code == 200
-    assert set(health.json()) == {"status", "version", "database"}
+    assert set(health.json()) == {"status", "version", "database", "estimators"}
     assert health.json()["database"] == "ok"
+    assert health.json()["estimators"] == ("compiled" if estimators.NATIVE else "interpreted")
 
 
 async def test_garbage_tokens_are_rejected(app: FastAPI, client: httpx.AsyncClient) -> None:
