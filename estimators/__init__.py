@@ -18,13 +18,15 @@ import os
 import sys
 from pathlib import Path
 
-# the modules a live poll spends its time in. Not cycles.py: compiled code would unbox its
-# float subclass. Not output.py: a compiled subclass of an ABC (RowTable, a Mapping) shares
-# the ABC's isinstance cache, so any dict would pass for one. The grid and heading are
-# numpy-bound.
+# the modules a live poll spends its time in. Not boundary.py: compiled code would unbox
+# its float subclass. Not output.py: a compiled subclass of an ABC (RowTable, a Mapping)
+# shares the ABC's isinstance cache, so any dict would pass for one.
 NATIVE_MODULES = (
     "buffers",
     "compensation",
+    "cycles",
+    "grid_stage",
+    "heading",
     "imu_stage",
     "pipeline",
     "robot_stage",

@@ -31,68 +31,19 @@ import bisect
 import math
 from collections import deque
 from dataclasses import dataclass
-from typing import Any, Literal, TypeAlias
+from typing import Literal, TypeAlias
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from estimators.boundary import Boundary as Boundary  # re-exported: its home until now
+from estimators.boundary import Source
 from estimators.buffers import RowBuffer
 
 FloatArray: TypeAlias = NDArray[np.float64]
 Mode: TypeAlias = Literal["auto", "path", "events", "reach"]
-Source: TypeAlias = Literal["path", "reach", "event"]
 
 TWO_PI = 2.0 * math.pi
-
-
-class Boundary(float):
-    """A cycle boundary: a ``float`` time (s) with read-only extras.
-
-    - ``cycle_start``: start (s) of the completed cycle ``[cycle_start, self)``, or ``None``
-      when this boundary only opens a cycle (first boundary, or after a restart: the cycle
-      before it was too short, too long, interrupted or from another source).
-    - ``source``: ``"path"``, ``"reach"`` or ``"event"``.
-    - ``detected_at``: s, ``>= self``; no sample at or after this time had been fed when the
-      boundary was reported (the crossing sample for path/reach; the event time, or just after
-      the data already seen for a late event). Consumers that act on a boundary per sample
-      (:meth:`estimators.compensation.Indicator.cycle_completed`) start at samples with
-      ``t >= detected_at`` to stay chunk-invariant.
-
-    Compares, hashes and serialises (``json``) as the plain float.
-    """
-
-    __slots__ = ("cycle_start", "detected_at", "source")
-    cycle_start: float | None
-    source: Source
-    detected_at: float
-
-    def __new__(
-        cls,
-        t: float,
-        cycle_start: float | None = None,
-        source: Source = "path",
-        detected_at: float | None = None,
-    ) -> Boundary:
-        obj = super().__new__(cls, t)
-        obj.cycle_start = cycle_start
-        obj.source = source
-        obj.detected_at = float(t) if detected_at is None else detected_at
-        return obj
-
-    @property
-    def closes_cycle(self) -> bool:
-        return self.cycle_start is not None
-
-    def __reduce__(
-        self,
-    ) -> tuple[type[Boundary], tuple[float, float | None, Source, float]]:
-        return (Boundary, (float(self), self.cycle_start, self.source, self.detected_at))
-
-    def __repr__(self) -> str:
-        return (
-            f"Boundary({float(self)!r}, cycle_start={self.cycle_start!r}, "
-            f"source={self.source!r}, detected_at={self.detected_at!r})"
-        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -862,7 +813,7 @@ class CycleSegmenter:
             self._switch_t = float(t)
         bisect.insort(self._events, float(t))
 
-    def update(self, t: ArrayLike, wrist: ArrayLike) -> list[float]:
+    def update(self, t: ArrayLike, wrist: ArrayLike) -> list[Boundary]:
         """Feed wrist samples: ``t`` (N,) s strictly increasing, ``wrist`` (N,3) m, robot frame
         (z up; only x and y are used). Returns new :class:`Boundary` objects (floats, s)."""
         tt = np.asarray(t, dtype=np.float64)
@@ -870,7 +821,7 @@ class CycleSegmenter:
         n = tt.shape[0]
         if ww.shape != (n, 3):
             raise ValueError("wrist must have shape (N, 3) matching t")
-        out: list[float] = []
+        out: list[Boundary] = []
         det = self._detector
         if det is not None and n:
             k = n
@@ -888,10 +839,10 @@ class CycleSegmenter:
         self._due_events(seen, out)
         return out
 
-    def push(self, t: float, x: float, y: float) -> list[float]:
+    def push(self, t: float, x: float, y: float) -> list[Boundary]:
         """:meth:`update` for one sample (time s, wrist x and y m), without numpy calls:
         the live pipeline feeds one row at a time."""
-        out: list[Any] = []  # Boundary objects (list[Any]: the detector's list is returned)
+        out: list[Boundary] = []
         det = self._detector
         if det is not None:
             if self._switch_t is None or t < self._switch_t:
@@ -910,7 +861,7 @@ class CycleSegmenter:
             self._due_events(seen, out)
         return out
 
-    def _due_events(self, seen: float, out: list[float]) -> None:
+    def _due_events(self, seen: float, out: list[Boundary]) -> None:
         if self._events and self._events[0] <= self._data_t:
             k = bisect.bisect_right(self._events, self._data_t)
             due = self._events[:k]
@@ -919,7 +870,7 @@ class CycleSegmenter:
             for te in due:
                 self._emit_event(te, max(te, after), out)
 
-    def _emit_event(self, te: float, detected_at: float, out: list[float]) -> None:
+    def _emit_event(self, te: float, detected_at: float, out: list[Boundary]) -> None:
         p = self.params
         if te <= self._last_b:
             return

@@ -39,6 +39,7 @@ from numpy.typing import NDArray
 
 from estimators import heading as hd
 from estimators import rows
+from estimators.boundary import Boundary
 from estimators.buffers import RowQueue
 from estimators.compensation import ONE_CODE, CompensationParams, EpisodeTracker, Indicator
 from estimators.cycles import CycleParams, CycleSegmenter
@@ -619,7 +620,7 @@ class Pipeline:
         dec = self._decisions[lo:hi]
         # compensation rule (§3.4); segment first: a completed cycle sets the tolerated
         # duration from its end on
-        boundaries: list[float]
+        boundaries: list[Boundary]
         tt: Any
         disp: Any
         if n <= _SMALL:
