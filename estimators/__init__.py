@@ -35,7 +35,7 @@ NATIVE_MODULES = (
 )
 _HERE = Path(__file__).resolve().parent
 NATIVE_DIR = _HERE / "_native"
-_STAMP = "SOURCES"
+NATIVE_STAMP = NATIVE_DIR / "SOURCES"  # the digest the build was made from, written last
 
 
 def sources_digest() -> str:
@@ -46,13 +46,18 @@ def sources_digest() -> str:
     return h.hexdigest()
 
 
+def built_from() -> str | None:
+    """The digest the compiled build was made from, or None if there is none."""
+    try:
+        return NATIVE_STAMP.read_text().strip()
+    except OSError:
+        return None
+
+
 def _load_native() -> bool:
     if os.environ.get("REHAB_PURE", "") not in ("", "0"):
         return False
-    try:
-        if (NATIVE_DIR / _STAMP).read_text().strip() != sources_digest():
-            return False
-    except OSError:
+    if built_from() != sources_digest():
         return False
     suffix = importlib.machinery.EXTENSION_SUFFIXES[0]
     groups = sorted(NATIVE_DIR.glob(f"*__mypyc{suffix}"))

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from functools import partial
 from types import SimpleNamespace
 from typing import Any, NamedTuple
 
@@ -119,10 +120,10 @@ VECTOR: Any = SimpleNamespace(
     sqrt=np.sqrt,  # correctly rounded, as math.sqrt
     isfinite=np.isfinite,
     mod=_v_mod,
-    atan2=lambda y, x: _v_map(math.atan2, y, x),
-    cos=lambda x: _v_trig(math.cos, x),
-    sin=lambda x: _v_trig(math.sin, x),
-    acos=lambda x: _v_map(math.acos, x),
+    atan2=partial(_v_map, math.atan2),
+    cos=partial(_v_trig, math.cos),
+    sin=partial(_v_trig, math.sin),
+    acos=partial(_v_map, math.acos),
     not_=_v_not,
 )
 """Namespace for numpy arrays of shape (n,), bit-identical to ``SCALAR``."""

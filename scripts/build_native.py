@@ -39,13 +39,6 @@ def _compiler() -> str | None:
     return None
 
 
-def _stamp() -> str | None:
-    try:
-        return (estimators.NATIVE_DIR / "SOURCES").read_text().strip()
-    except OSError:
-        return None
-
-
 def build() -> None:
     """Compile in a scratch copy of the package; replace ``_native/`` only when done."""
     digest = estimators.sources_digest()
@@ -78,7 +71,7 @@ def build() -> None:
         out.mkdir()
         for p in built:
             shutil.copy2(p, out / p.name)
-        (out / "SOURCES").write_text(digest + "\n")  # last: a build is valid once complete
+        estimators.NATIVE_STAMP.write_text(digest + "\n")  # last: valid once complete
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -92,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.clean:
         shutil.rmtree(estimators.NATIVE_DIR, ignore_errors=True)
         return 0
-    if not args.force and _stamp() == estimators.sources_digest():
+    if not args.force and estimators.built_from() == estimators.sources_digest():
         return 0
     why = _compiler()
     if why is not None:

@@ -19,14 +19,16 @@ try:
 except PackageNotFoundError:  # running from a source tree that was never installed
     _VERSION = "0+unknown"
 
+# fixed at import: the compiled build is chosen when the estimators package loads
+_ESTIMATORS: Literal["compiled", "interpreted"] = "compiled" if estimators.NATIVE else "interpreted"
+
 
 @router.get("/health")
 async def health(db: DB) -> HealthOut:
-    kind: Literal["compiled", "interpreted"] = "compiled" if estimators.NATIVE else "interpreted"
     try:
         await db.execute(text("SELECT 1"))
     except Exception:  # any driver error means the same thing to a health check
         return HealthOut(
-            status="degraded", version=_VERSION, database="unreachable", estimators=kind
+            status="degraded", version=_VERSION, database="unreachable", estimators=_ESTIMATORS
         )
-    return HealthOut(status="ok", version=_VERSION, database="ok", estimators=kind)
+    return HealthOut(status="ok", version=_VERSION, database="ok", estimators=_ESTIMATORS)

@@ -11,6 +11,7 @@ import subprocess
 import sys
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -19,7 +20,7 @@ from estimators.output import RowTable
 
 ROOT = Path(__file__).resolve().parents[2]
 built = pytest.mark.skipif(
-    not (estimators.NATIVE_DIR / "SOURCES").is_file(),
+    estimators.built_from() is None,
     reason="no compiled build (scripts/build_native.py; ./run test makes one)",
 )
 
@@ -65,7 +66,9 @@ print(json.dumps(out))
 """
 
 
-def _run(code: str, *args: str, pure: bool, path: Path = ROOT) -> dict[str, object]:
+def _run(code: str, *args: str, pure: bool, path: Path = ROOT) -> Any:
+    """The JSON that ``code`` prints last, run in a fresh interpreter on the package at
+    ``path``."""
     env = {**os.environ, "PYTHONPATH": str(path), "REHAB_PURE": "1" if pure else ""}
     proc = subprocess.run(
         [sys.executable, "-c", code, *args],
@@ -75,8 +78,7 @@ def _run(code: str, *args: str, pure: bool, path: Path = ROOT) -> dict[str, obje
         text=True,
         check=True,
     )
-    result: dict[str, object] = json.loads(proc.stdout.strip().splitlines()[-1])
-    return result
+    return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
 _WHICH = (
@@ -101,16 +103,7 @@ def test_pure_switch_keeps_the_interpreted_modules() -> None:
 
 
 def _which(pure: bool, root: Path = ROOT) -> tuple[bool, str]:
-    env = {**os.environ, "PYTHONPATH": str(root), "REHAB_PURE": "1" if pure else ""}
-    proc = subprocess.run(
-        [sys.executable, "-c", _WHICH],
-        cwd=root,
-        env=env,
-        capture_output=True,
-        text=True,
-        check=True,
-    )
-    native, path = json.loads(proc.stdout)
+    native, path = _run(_WHICH, pure=pure, path=root)
     return bool(native), str(path)
 
 
