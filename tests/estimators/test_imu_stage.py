@@ -37,10 +37,10 @@ def _fed(
 ) -> tuple[ImuStage, Quality]:
     t, gyr, acc = imu
     stage, q = ImuStage(params or PipelineParams()), Quality()
-    bounds = [0, *sorted(set(cuts)), len(t)]
+    # (a message is never empty: cuts at or past the end are not cuts)
+    bounds = [0, *sorted({c for c in cuts if c < len(t)}), len(t)]
     for a, b in zip(bounds[:-1], bounds[1:], strict=True):
-        if b > a:
-            stage.process(t[a:b], gyr[a:b], acc[a:b], q)
+        stage.process(t[a:b], gyr[a:b], acc[a:b], q)
     return stage, q
 
 
