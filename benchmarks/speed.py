@@ -28,12 +28,28 @@ from simulator import SimConfig, simulate
 
 
 def best(fn, repeat: int) -> float:
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
+    return min(timed(fn)[0] for _ in range(repeat))
+
+
+def timed(fn) -> tuple[float, float, float]:
+    """Wall time, this process's CPU time and the share of the machine's CPU time the
+    hypervisor gave to other guests ("steal", /proc/stat; NaN where unknown) over one call:
+    a slow run with steal near 0 was slowed by contention, not preemption."""
+    s0, c0, t0 = _cpu_ticks(), time.process_time(), time.perf_counter()
+    fn()
+    t, c, s1 = time.perf_counter() - t0, time.process_time() - c0, _cpu_ticks()
+    steal = (s1[1] - s0[1]) / (s1[0] - s0[0]) if s1[0] > s0[0] else float("nan")
+    return t, c, steal
+
+
+def _cpu_ticks() -> tuple[int, int]:
+    """All CPUs' ticks and their steal ticks so far ((0, 0) off Linux)."""
+    try:
+        with open("/proc/stat") as f:
+            ticks = [int(x) for x in f.readline().split()[1:]]
+    except OSError:
+        return 0, 0
+    return sum(ticks), ticks[7] if len(ticks) > 7 else 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -81,10 +97,10 @@ def main(argv: list[str] | None = None) -> int:
                 p.poll()
         p.finish()
 
-    t = best(live, max(1, args.repeat // 2))
+    t, cpu, steal = min(timed(live) for _ in range(max(1, args.repeat // 2)))
     print(
         f"streaming (poll after every robot message): {1e6 * t / n_imu:.1f} µs per IMU sample "
-        f"({n_imu} samples)"
+        f"({n_imu} samples; that run: CPU {1e6 * cpu / n_imu:.1f} µs, steal {100 * steal:.1f} %)"
     )
     # one heading update on a full window, taken from a real run
     p = Pipeline(PipelineParams())
