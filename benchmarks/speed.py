@@ -27,8 +27,9 @@ from estimators.pipeline import Pipeline
 from simulator import SimConfig, simulate
 
 
-def best(fn, repeat: int) -> float:
-    return min(timed(fn)[0] for _ in range(repeat))
+def best(fn, repeat: int) -> tuple[float, float, float]:
+    """:func:`timed` of the fastest of ``repeat`` calls."""
+    return min(timed(fn) for _ in range(repeat))
 
 
 def timed(fn) -> tuple[float, float, float]:
@@ -81,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
             ("improved", PipelineParams()),
             ("paper", PipelineParams(method="paper")),
         ):
-            t = best(lambda p=params: run_analyze(rec, p, out), args.repeat)
+            t = best(lambda p=params: run_analyze(rec, p, out), args.repeat)[0]
             print(
                 f"analyze ({name}): {t:.3f} s for {args.duration:.0f} s of data "
                 f"({len(messages)} messages) = {args.duration / t:.0f}x real time"
@@ -97,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
                 p.poll()
         p.finish()
 
-    t, cpu, steal = min(timed(live) for _ in range(max(1, args.repeat // 2)))
+    t, cpu, steal = best(live, max(1, args.repeat // 2))
     print(
         f"streaming (poll after every robot message): {1e6 * t / n_imu:.1f} µs per IMU sample "
         f"({n_imu} samples; that run: CPU {1e6 * cpu / n_imu:.1f} µs, steal {100 * steal:.1f} %)"
