@@ -11,6 +11,7 @@ import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
+from anyio import CapacityLimiter
 from fastapi import Depends, FastAPI, WebSocket, WebSocketException, status
 from fastapi.exceptions import WebSocketRequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
@@ -28,6 +29,7 @@ from backend.deps import AppState
 from backend.live.manager import LiveManager
 from backend.routers import api_router, exports, live
 from backend.routers import viz as viz_router
+from backend.security import harden
 from backend.settings import Settings, get_settings
 from backend.static import install_frontend
 from backend.viz import Viz
@@ -47,6 +49,7 @@ async def open_storage(settings: Settings) -> AppState:
             database=database,
             signer=TokenSigner(load_or_create_secret(settings)),
             limiter=LoginLimiter(settings.login_max_failures, settings.login_window_s),
+            password_slots=CapacityLimiter(settings.password_hash_concurrency),
         )
         async with database.transaction() as db:
             state.first_admin = await ensure_first_admin(db, settings)
@@ -127,7 +130,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         summary="Real-time shoulder-compensation feedback for robot-assisted arm therapy.",
         lifespan=lifespan,
         openapi_url="/api/openapi.json",
-        docs_url="/api/docs",
+        docs_url="/api/docs" if settings.api_docs else None,  # Swagger UI comes from a CDN
         redoc_url=None,
     )
     app.state.settings = settings
@@ -141,6 +144,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             allow_methods=["*"],
             allow_headers=["*"],
         )
+    harden(app, settings)  # body limit, Origin checks, headers, proxy address (security.py)
     app.include_router(api_router)
     # ---- [live] WebSocket feeds (they guard themselves) and exports (therapists only)
     app.include_router(live.router, prefix="/api")

@@ -138,6 +138,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         log_level=args.log_level,
         ws="websockets-sansio",
         ws_per_message_deflate=settings.ws_compression,
+        proxy_headers=False,  # the app believes X-Forwarded-* from forwarded_allow_ips only
     )
     return 0
 
@@ -237,6 +238,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             log_level="warning",
             ws="websockets-sansio",
             ws_per_message_deflate=settings.ws_compression,
+            proxy_headers=False,  # the app believes X-Forwarded-* from forwarded_allow_ips
         )
     )
     stop = threading.Event()

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Annotated, Any, Protocol
 
+from anyio import CapacityLimiter
 from fastapi import Depends
 from sqlalchemy.ext.asyncio import AsyncSession
 from starlette.requests import HTTPConnection
@@ -89,6 +90,7 @@ class AppState:
     database: Database
     signer: TokenSigner
     limiter: LoginLimiter
+    password_slots: CapacityLimiter  # Argon2 runs at once (settings.password_hash_concurrency)
     live: LiveHooks = field(default_factory=NoLive)
     first_admin: AdminCredentials | None = None
     interrupted_sessions: list[int] = field(default_factory=list)

@@ -6,11 +6,13 @@ environment names (``REHAB_DATABASE_URL``, ``REHAB_ZENOH_CONNECT``, ...).
 
 from __future__ import annotations
 
+import json
 from functools import lru_cache
 from pathlib import Path
+from typing import Annotated
 
 from pydantic import Field, SecretStr, field_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 # Async drivers behind the plain URL schemes an operator is likely to write.
 _SCHEME_ALIASES = {
@@ -29,6 +31,16 @@ class Settings(BaseSettings):
     cors_origins: list[str] = Field(
         default_factory=list, description="Allowed browser origins; empty = CORS off."
     )
+    # Hardening (docs/security.md)
+    forwarded_allow_ips: Annotated[list[str], NoDecode] = Field(
+        default_factory=lambda: ["127.0.0.1"],
+        description="Peers (addresses or CIDR) whose X-Forwarded-For/-Proto are believed: "
+        "the clinic's TLS proxy, so each workstation gets its own login limits.",
+    )
+    max_body_bytes: int = Field(default=1 << 20, gt=0, description="Larger requests get 413.")
+    api_docs: bool = Field(
+        default=False, description="Swagger UI at /api/docs (it loads scripts from a CDN)."
+    )
 
     # Storage
     data_dir: Path = Path("./data")
@@ -36,6 +48,9 @@ class Settings(BaseSettings):
         default=None,
         description="SQLAlchemy URL; default: SQLite file rehab.db in data_dir. "
         "PostgreSQL e.g. postgresql+psycopg://user:pw@host/db.",
+    )
+    database_password_file: Path | None = Field(
+        default=None, description="File holding the database password (not in the URL)."
     )
 
     # Zenoh (contract §1, §6)
@@ -60,8 +75,20 @@ class Settings(BaseSettings):
         description="File holding the first admin's password (e.g. a Docker secret); "
         "random if unset.",
     )
+    secret_file: Path | None = Field(
+        default=None, description="File holding the signing key (a Docker secret)."
+    )
     login_max_failures: int = Field(default=5, gt=0)
     login_window_s: float = Field(default=300.0, gt=0)
+    password_hash_concurrency: int = Field(
+        default=2, gt=0, description="Argon2 runs at once (each takes ~50 ms of a core)."
+    )
+    session_idle_s: int = Field(
+        default=30 * 60, gt=0, description="A login unused this long is ended."
+    )
+    ws_recheck_s: float = Field(
+        default=30.0, gt=0, description="Open WebSockets re-check their login this often."
+    )
 
     # Live data
     ingest_queue_size: int = Field(default=2048, gt=0)
@@ -89,11 +116,28 @@ class Settings(BaseSettings):
                 return driver + url[len(plain) :]
         return url
 
+    @field_validator("forwarded_allow_ips", mode="before")
+    @classmethod
+    def _comma_list(cls, value: object) -> object:
+        """``REHAB_FORWARDED_ALLOW_IPS=172.30.0.10,10.0.0.0/8`` (or a JSON list)."""
+        if isinstance(value, str):
+            if value.lstrip().startswith("["):
+                return json.loads(value)
+            return [v.strip() for v in value.split(",") if v.strip()]
+        return value
+
     @property
     def db_url(self) -> str:
-        """The effective database URL (the SQLite default lives in data_dir)."""
+        """The effective database URL (the SQLite default lives in data_dir), with the
+        password from ``database_password_file`` if one is given."""
         if self.database_url:
-            return self.database_url
+            if self.database_password_file is None:
+                return self.database_url
+            from sqlalchemy.engine import make_url
+
+            password = self.database_password_file.read_text(encoding="utf-8").strip()
+            url = make_url(self.database_url).set(password=password)
+            return url.render_as_string(hide_password=False)
         return f"sqlite+aiosqlite:///{(self.data_dir / 'rehab.db').resolve().as_posix()}"
 
     @property

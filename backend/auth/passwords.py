@@ -1,12 +1,14 @@
 """Password hashing with Argon2id (pwdlib, on argon2-cffi).
 
 Hashing costs tens of milliseconds of CPU on purpose; the async variants run it in a worker
-thread so the event loop (which also runs the live pipelines) never stalls on a login.
+thread so the event loop (which also runs the live pipelines) never stalls on a login. A
+``limiter`` (the service's ``password_slots``) bounds how many run at once, so a burst of
+logins cannot take every core from the live pipelines.
 """
 
 from __future__ import annotations
 
-from anyio import to_thread
+from anyio import CapacityLimiter, to_thread
 from pwdlib import PasswordHash
 from pwdlib.hashers.argon2 import Argon2Hasher
 
@@ -28,11 +30,11 @@ def verify_password(password: str, password_hash: str | None) -> tuple[bool, str
     return _hasher.verify_and_update(password, password_hash)
 
 
-async def hash_password_async(password: str) -> str:
-    return await to_thread.run_sync(hash_password, password)
+async def hash_password_async(password: str, limiter: CapacityLimiter | None = None) -> str:
+    return await to_thread.run_sync(hash_password, password, limiter=limiter)
 
 
 async def verify_password_async(
-    password: str, password_hash: str | None
+    password: str, password_hash: str | None, limiter: CapacityLimiter | None = None
 ) -> tuple[bool, str | None]:
-    return await to_thread.run_sync(verify_password, password, password_hash)
+    return await to_thread.run_sync(verify_password, password, password_hash, limiter=limiter)

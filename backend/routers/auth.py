@@ -31,7 +31,8 @@ async def login(
     """Returns a bearer token (scripts) and sets it as a Secure, HttpOnly, SameSite=Strict
     cookie (the dashboard)."""
     client = client_address(request)
-    wait = state.limiter.retry_after(body.username, client)
+    # Counted now, before the (slow) verification: parallel guesses see each other.
+    wait, stamp = state.limiter.attempt(body.username, client)
     if wait is not None:
         raise HTTPException(
             status.HTTP_429_TOO_MANY_REQUESTS,
@@ -40,10 +41,9 @@ async def login(
         )
     therapist = await db.scalar(select(Therapist).where(Therapist.username == body.username))
     ok, new_hash = await verify_password_async(
-        body.password, therapist.password_hash if therapist else None
+        body.password, therapist.password_hash if therapist else None, state.password_slots
     )
     if therapist is None or not ok or not therapist.active:
-        state.limiter.failed(body.username, client)
         reason = "inactive" if therapist is not None and ok else "bad_credentials"
         audit(
             db, therapist or body.username, "login.failed", None, {"ip": client, "reason": reason}
@@ -54,7 +54,7 @@ async def login(
             "invalid username or password",
             headers={"WWW-Authenticate": "Bearer"},
         )
-    state.limiter.succeeded(body.username, client)
+    state.limiter.succeeded(body.username, client, stamp)
     if new_hash is not None:
         therapist.password_hash = new_hash
     ttl = state.settings.access_token_ttl_s
