@@ -18,6 +18,7 @@ from sqlalchemy.ext.asyncio import AsyncSession
 from starlette.requests import HTTPConnection
 
 from backend.auth.first_admin import AdminCredentials
+from backend.auth.logins import OpenSockets
 from backend.auth.ratelimit import LoginLimiter
 from backend.auth.tokens import TokenSigner
 from backend.db.engine import Database
@@ -92,6 +93,7 @@ class AppState:
     limiter: LoginLimiter
     password_slots: CapacityLimiter  # Argon2 runs at once (settings.password_hash_concurrency)
     live: LiveHooks = field(default_factory=NoLive)
+    sockets: OpenSockets = field(default_factory=OpenSockets)  # therapists' WebSockets
     first_admin: AdminCredentials | None = None
     interrupted_sessions: list[int] = field(default_factory=list)
 

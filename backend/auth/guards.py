@@ -9,8 +9,10 @@ from fastapi.security import HTTPBearer
 from sqlalchemy import select
 from starlette.requests import HTTPConnection
 
+from backend.auth.logins import login_alive, touch
 from backend.auth.tokens import InvalidToken
-from backend.db.models import Device, Session, Therapist
+from backend.db.base import utcnow
+from backend.db.models import Device, Login, Session, Therapist
 from backend.deps import DB, AppState, State
 
 
@@ -41,23 +43,47 @@ async def current_therapist(
 ) -> Therapist:
     """The active therapist behind the bearer token, else behind the session cookie.
 
-    Works for WebSocket routes too (the browser sends the cookie with the upgrade request);
-    there a refusal closes with 1008.
+    The token's login must be alive (not revoked, not idle: :mod:`backend.auth.logins`); its
+    id is left in ``conn.state.login_id`` for logout and the WebSockets. Works for WebSocket
+    routes too (the browser sends the cookie with the upgrade request); there a refusal
+    closes with 1008.
     """
     token = bearer or conn.cookies.get(state.settings.cookie_name)
     if not token:
         raise _unauthorized(conn, "not authenticated")
     try:
-        therapist_id = state.signer.decode_access(token)
+        therapist_id, login_id = state.signer.decode_access(token)
     except InvalidToken:
         raise _unauthorized(conn, "invalid or expired token") from None
+    login = await db.get(Login, login_id)
+    now = utcnow()
+    if login is None or not login_alive(login, therapist_id, state.settings.session_idle_s, now):
+        await db.commit()
+        raise _unauthorized(conn, "logged out, revoked or idle too long")
+    touch(login, now)
     therapist = await db.get(Therapist, therapist_id)
-    # End the read transaction: the connection goes back to the pool (a WebSocket route
-    # would otherwise hold it for its whole life); the object stays loaded and attached.
+    # End the transaction: the connection goes back to the pool (a WebSocket route would
+    # otherwise hold it for its whole life); the objects stay loaded and attached.
     await db.commit()
     if therapist is None or not therapist.active:
         raise _unauthorized(conn, "account unknown or deactivated")
+    conn.state.login_id = login_id
     return therapist
+
+
+async def login_still_valid(state: AppState, therapist_id: int, login_id: str) -> bool:
+    """For open WebSockets, now and then: the login alive (an open live view counts as use)
+    and the account active."""
+    async with state.database.transaction() as db:
+        login = await db.get(Login, login_id)
+        now = utcnow()
+        if login is None or not login_alive(
+            login, therapist_id, state.settings.session_idle_s, now
+        ):
+            return False
+        touch(login, now)
+        therapist = await db.get(Therapist, therapist_id)
+        return therapist is not None and therapist.active
 
 
 CurrentTherapist = Annotated[Therapist, Depends(current_therapist)]

@@ -4,8 +4,9 @@ The audience separates the two kinds, so neither is accepted where the other is 
 Overlay tokens are stateless and bound to one device and one session; they are revoked by
 the session itself: :func:`backend.auth.guards.verify_overlay_token` also requires that
 session to still be active on that device, so stopping the session kills every link.
-Access tokens are not revocable one by one: they expire (a shift by default), and the
-account is re-read on every request, so deactivating a therapist takes effect at once.
+Access tokens name a login (``sid``, a row of ``logins``): the guard requires that row to
+be unrevoked and recently used, so logout, a password change or a deactivation ends a token
+at once (see :mod:`backend.auth.logins`); they also expire (a shift by default).
 """
 
 from __future__ import annotations
@@ -58,15 +59,16 @@ class TokenSigner:
             raise InvalidToken(str(exc)) from None
         return claims
 
-    def issue_access(self, therapist_id: int, ttl_s: float) -> Issued:
-        return self._issue(ACCESS, ttl_s, {"sub": str(therapist_id)})
+    def issue_access(self, therapist_id: int, ttl_s: float, login_id: str) -> Issued:
+        return self._issue(ACCESS, ttl_s, {"sub": str(therapist_id), "sid": login_id})
 
-    def decode_access(self, token: str) -> int:
-        """The therapist id of a valid, unexpired access token."""
-        sub = self._decode(token, ACCESS, ["sub"])["sub"]
-        if not isinstance(sub, str) or not sub.isdigit():
+    def decode_access(self, token: str) -> tuple[int, str]:
+        """``(therapist id, login id)`` of a valid, unexpired access token."""
+        claims = self._decode(token, ACCESS, ["sub", "sid"])
+        sub, sid = claims["sub"], claims["sid"]
+        if not isinstance(sub, str) or not sub.isdigit() or not isinstance(sid, str):
             raise InvalidToken("bad subject")
-        return int(sub)
+        return int(sub), sid
 
     def issue_overlay(self, device: str, session_id: int, ttl_s: float) -> Issued:
         return self._issue(OVERLAY, ttl_s, {"dev": device, "sid": session_id})

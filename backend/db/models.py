@@ -178,3 +178,24 @@ class AuditLog(Base):
     action: Mapped[str] = mapped_column(String(64), index=True)
     object: Mapped[str | None] = mapped_column(String(128))
     details: Mapped[JSONDict | None] = mapped_column(JSON)
+
+
+class Login(Base):
+    """One login: the access token names it (``sid``), so it can be ended server-side.
+
+    Revoked by logout, a password change (the account's other logins) and deactivation; dead
+    after ``expires_at`` or when unused for ``session_idle_s``. The id is random, not secret
+    on its own: a token also needs the signing key.
+    """
+
+    __tablename__ = "logins"
+
+    id: Mapped[str] = mapped_column(String(64), primary_key=True)
+    therapist_id: Mapped[int] = mapped_column(
+        ForeignKey("therapists.id", ondelete="CASCADE"), index=True
+    )
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    last_seen: Mapped[datetime] = mapped_column(default=utcnow)
+    expires_at: Mapped[datetime]
+    revoked_at: Mapped[datetime | None]
+    ip: Mapped[str | None] = mapped_column(String(64))

@@ -7,6 +7,7 @@ from sqlalchemy import select
 
 from backend.auth.first_admin import read_admin_credentials
 from backend.auth.guards import CurrentTherapist
+from backend.auth.logins import open_login, revoke
 from backend.auth.passwords import hash_password_async, verify_password_async
 from backend.db.audit import audit
 from backend.db.models import Therapist
@@ -58,7 +59,8 @@ async def login(
     if new_hash is not None:
         therapist.password_hash = new_hash
     ttl = state.settings.access_token_ttl_s
-    issued = state.signer.issue_access(therapist.id, ttl)
+    session = await open_login(db, therapist, ttl, client)
+    issued = state.signer.issue_access(therapist.id, ttl, session.id)
     audit(db, therapist, "login", f"therapist:{therapist.id}", {"ip": client})
     await db.commit()
     response.set_cookie(
@@ -78,10 +80,16 @@ async def login(
 
 
 @router.post("/logout", status_code=status.HTTP_204_NO_CONTENT)
-async def logout(therapist: CurrentTherapist, response: Response, state: State, db: DB) -> None:
-    """Clears the cookie. A bearer token stays valid until it expires (tokens are stateless)."""
+async def logout(
+    therapist: CurrentTherapist, request: Request, response: Response, state: State, db: DB
+) -> None:
+    """Ends this login on the server (its token is refused from now on, its live views
+    close) and clears the cookie. The account's other logins go on."""
+    login_id: str = request.state.login_id
+    await revoke(db, therapist.id, only=login_id)
     audit(db, therapist, "logout", f"therapist:{therapist.id}")
     await db.commit()
+    state.sockets.close(therapist.id, "logged out", only=login_id)
     response.delete_cookie(
         state.settings.cookie_name,
         httponly=True,
@@ -98,14 +106,21 @@ async def me(therapist: CurrentTherapist) -> TherapistOut:
 
 @router.post("/password", status_code=status.HTTP_204_NO_CONTENT)
 async def change_password(
-    body: PasswordChangeIn, therapist: CurrentTherapist, state: State, db: DB
+    body: PasswordChangeIn, therapist: CurrentTherapist, request: Request, state: State, db: DB
 ) -> None:
-    ok, _ = await verify_password_async(body.current_password, therapist.password_hash)
+    """Also ends every other login of the account (a stolen token dies with the old
+    password); this one goes on."""
+    ok, _ = await verify_password_async(
+        body.current_password, therapist.password_hash, state.password_slots
+    )
     if not ok:
         raise HTTPException(status.HTTP_403_FORBIDDEN, "current password is wrong")
-    therapist.password_hash = await hash_password_async(body.new_password)
+    therapist.password_hash = await hash_password_async(body.new_password, state.password_slots)
+    login_id: str = request.state.login_id
+    await revoke(db, therapist.id, keep=login_id)
     audit(db, therapist, "therapist.password", f"therapist:{therapist.id}")
     await db.commit()
+    state.sockets.close(therapist.id, "password changed", keep=login_id)
     # The first admin's generated password must not linger on disk once it is replaced.
     creds = read_admin_credentials(state.settings)
     if creds is not None and creds.username == therapist.username:

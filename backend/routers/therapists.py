@@ -8,10 +8,11 @@ from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 
 from backend.auth.guards import AdminTherapist, require_admin
+from backend.auth.logins import revoke
 from backend.auth.passwords import hash_password_async
 from backend.db.audit import audit
 from backend.db.models import Therapist
-from backend.deps import DB
+from backend.deps import DB, State
 from backend.schemas.therapists import TherapistCreate, TherapistOut
 
 router = APIRouter(prefix="/therapists", tags=["therapists"], dependencies=[Depends(require_admin)])
@@ -49,13 +50,18 @@ async def create_therapist(body: TherapistCreate, admin: AdminTherapist, db: DB)
 
 
 @router.post("/{therapist_id}/deactivate")
-async def deactivate_therapist(therapist_id: int, admin: AdminTherapist, db: DB) -> TherapistOut:
+async def deactivate_therapist(
+    therapist_id: int, admin: AdminTherapist, db: DB, state: State
+) -> TherapistOut:
+    """Also revokes every login of the account and closes its live views."""
     therapist = await _get(db, therapist_id)
     if therapist.id == admin.id:
         raise HTTPException(status.HTTP_409_CONFLICT, "cannot deactivate your own account")
     therapist.active = False
+    await revoke(db, therapist.id)
     audit(db, admin, "therapist.deactivate", f"therapist:{therapist.id}")
     await db.commit()
+    state.sockets.close(therapist.id, "account deactivated")
     return TherapistOut.model_validate(therapist)
 
 

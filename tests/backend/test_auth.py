@@ -114,15 +114,17 @@ async def test_login_failures(client: httpx.AsyncClient, state: AppState) -> Non
 
 
 async def test_expired_and_foreign_tokens(client: httpx.AsyncClient, state: AppState) -> None:
-    expired = state.signer.issue_access(1, -1).token
+    expired = state.signer.issue_access(1, -1, "x").token
     r = await client.get("/api/auth/me", headers={"Authorization": f"Bearer {expired}"})
     assert r.status_code == 401
     # Signed with another key (another installation).
-    foreign = TokenSigner(b"y" * 40).issue_access(1, 60).token
+    foreign = TokenSigner(b"y" * 40).issue_access(1, 60, "x").token
     r = await client.get("/api/auth/me", headers={"Authorization": f"Bearer {foreign}"})
     assert r.status_code == 401
-    valid = state.signer.issue_access(1, 60).token
-    r = await client.get("/api/auth/me", headers={"Authorization": f"Bearer {valid}"})
+    assert state.first_admin is not None
+    valid = (await login(client, "admin", state.first_admin.password))["Authorization"]
+    client.cookies.clear()
+    r = await client.get("/api/auth/me", headers={"Authorization": valid})
     assert r.status_code == 200
 
 
