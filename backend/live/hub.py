@@ -33,6 +33,9 @@ class Client:
     devices: frozenset[str] | None = None  # None: every device
     overlay: tuple[str, int] | None = None
     dropped: int = 0
+    # How the socket closes when ``None`` comes out of the queue (revoke() makes it 1008).
+    close_code: int = 1000
+    close_reason: str = "session ended"
 
     def wants(self, device: str, session_id: int | None) -> bool:
         if self.overlay is not None:
@@ -47,6 +50,11 @@ class Client:
             if text is None:  # the end must get through: make room for it
                 self.queue.get_nowait()
                 self.queue.put_nowait(None)
+
+    def revoke(self, reason: str) -> None:
+        """The viewer's login ended (logout, password change, deactivation): close 1008."""
+        self.close_code, self.close_reason = 1008, reason
+        self.send(None)
 
 
 @dataclass

@@ -9,13 +9,15 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+from collections.abc import Awaitable, Callable
 from typing import Annotated
 
 from fastapi import APIRouter, Query, WebSocket, WebSocketException, status
 from starlette.websockets import WebSocketDisconnect
 
 from backend import keys
-from backend.auth.guards import CurrentTherapist, OverlayAccess
+from backend.auth.guards import CurrentTherapist, OverlayAccess, login_still_valid
+from backend.db.audit import audit
 from backend.deps import State
 from backend.live.hub import Client, dumps
 from backend.live.manager import LiveManager
@@ -31,6 +33,10 @@ def _manager(state: State) -> LiveManager:
     return state.live
 
 
+def _ip(websocket: WebSocket) -> str:
+    return websocket.client.host if websocket.client else "unknown"
+
+
 def _device_filter(devices: str | None) -> list[str] | None:
     if devices is None:
         return None
@@ -40,16 +46,27 @@ def _device_filter(devices: str | None) -> list[str] | None:
     return names
 
 
-async def _pump(websocket: WebSocket, client: Client) -> None:
-    """Send the client's queue; return when either side ends."""
+async def _pump(
+    websocket: WebSocket, client: Client, recheck: Callable[[], Awaitable[bool]] | None = None
+) -> None:
+    """Send the client's queue; return when either side ends. ``recheck`` (a therapist's
+    feed) runs every ``ws_recheck_s``: false closes the socket with 1008."""
 
     async def send() -> None:
         while True:
             text = await client.queue.get()
             if text is None:
-                await websocket.close(status.WS_1000_NORMAL_CLOSURE, "session ended")
+                await websocket.close(client.close_code, client.close_reason)
                 return
             await websocket.send_text(text)
+
+    async def check() -> None:
+        assert recheck is not None
+        interval = websocket.app.state.rehab.settings.ws_recheck_s
+        while True:
+            await asyncio.sleep(interval)
+            if not await recheck():
+                client.revoke("login ended")
 
     async def receive() -> None:
         with contextlib.suppress(WebSocketDisconnect):
@@ -59,6 +76,8 @@ async def _pump(websocket: WebSocket, client: Client) -> None:
                     return
 
     tasks = [asyncio.create_task(send()), asyncio.create_task(receive())]
+    if recheck is not None:
+        tasks.append(asyncio.create_task(check()))
     try:
         await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
     finally:
@@ -77,8 +96,12 @@ async def live_feed(
     """Every device (or those in ``?devices=a,b``): hello, status, estimate, state, cycle."""
     manager = _manager(state)
     names = _device_filter(devices)
+    login_id: str = websocket.state.login_id
+    async with state.database.transaction() as db:  # a live view shows patient data
+        audit(db, therapist, "live.view", None, {"devices": names, "ip": _ip(websocket)})
     await websocket.accept()
     client = manager.hub.connect(devices=names)
+    state.sockets.add(therapist.id, login_id, client.revoke)
     try:
         client.send(
             dumps(
@@ -86,8 +109,9 @@ async def live_feed(
             )
         )
         manager.send_initial(client)
-        await _pump(websocket, client)
+        await _pump(websocket, client, lambda: login_still_valid(state, therapist.id, login_id))
     finally:
+        state.sockets.remove(login_id, client.revoke)
         manager.hub.disconnect(client)
 
 
@@ -96,6 +120,14 @@ async def overlay_feed(websocket: WebSocket, grant: OverlayAccess, state: State)
     """One device during one session, as the overlay link allows: state, cycle, a minimal
     status and the rows the game draws."""
     manager = _manager(state)
+    async with state.database.transaction() as db:
+        audit(
+            db,
+            None,
+            "overlay.view",
+            f"session:{grant.session_id}",
+            {"device": grant.device, "ip": _ip(websocket)},
+        )
     await websocket.accept()
     client = manager.hub.connect(overlay=(grant.device, grant.session_id))
     try:
