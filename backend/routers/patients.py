@@ -45,6 +45,7 @@ async def _flush_unique_code(db: DB) -> None:
 @router.get("")
 async def list_patients(
     db: DB,
+    therapist: CurrentTherapist,
     code: Annotated[str | None, Query(max_length=64, description="Code prefix")] = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 200,
     offset: Annotated[int, Query(ge=0)] = 0,
@@ -53,7 +54,10 @@ async def list_patients(
     if code:
         escaped = code.replace("\\", "\\\\").replace("%", "\\%").replace("_", "\\_")
         stmt = stmt.where(Patient.code.like(escaped + "%", escape="\\"))
-    return [patient_out(p) for p in await db.scalars(stmt)]
+    patients = [patient_out(p) for p in await db.scalars(stmt)]
+    audit(db, therapist, "patient.list", None, {"code": code, "count": len(patients)})
+    await db.commit()
+    return patients
 
 
 @router.post("", status_code=status.HTTP_201_CREATED)
@@ -67,8 +71,11 @@ async def create_patient(body: PatientCreate, therapist: CurrentTherapist, db: D
 
 
 @router.get("/{patient_id}")
-async def read_patient(patient_id: int, db: DB) -> PatientOut:
-    return patient_out(await get_patient(db, patient_id))
+async def read_patient(patient_id: int, therapist: CurrentTherapist, db: DB) -> PatientOut:
+    patient = patient_out(await get_patient(db, patient_id))
+    audit(db, therapist, "patient.read", f"patient:{patient_id}")
+    await db.commit()
+    return patient
 
 
 @router.patch("/{patient_id}")

@@ -124,6 +124,7 @@ async def create_session(
 async def list_sessions(
     db: DB,
     state: State,
+    therapist: CurrentTherapist,
     patient_id: int | None = None,
     device: Annotated[str | None, Query(max_length=64)] = None,
     session_status: Annotated[
@@ -154,13 +155,21 @@ async def list_sessions(
         stmt = stmt.where(Session.status == session_status)
     sessions = list(await db.scalars(stmt))
     await _complete(db, state, sessions)
+    obj = f"patient:{patient_id}" if patient_id is not None else None
+    details = {"device": device, "status": session_status, "count": len(sessions)}
+    audit(db, therapist, "session.list", obj, details)
+    await db.commit()
     return [session_out(s) for s in sessions]
 
 
 @router.get("/{session_id}", responses=_404)
-async def read_session(session_id: int, db: DB, state: State) -> SessionOut:
+async def read_session(
+    session_id: int, therapist: CurrentTherapist, db: DB, state: State
+) -> SessionOut:
     session = await _load(db, session_id)
     await _complete(db, state, [session])
+    audit(db, therapist, "session.read", f"session:{session_id}")
+    await db.commit()
     return session_out(session)
 
 

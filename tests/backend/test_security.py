@@ -247,3 +247,22 @@ async def test_configured_origins_may_write(tmp_path: object, db_url: str) -> No
                 headers={"Origin": "https://dash.clinic.example"},
             )
     assert r.status_code == 401
+
+
+async def test_reads_of_patient_data_are_audited(
+    client: httpx.AsyncClient, admin: dict[str, str], state: AppState
+) -> None:
+    r = await client.post(
+        "/api/patients", json={"code": "R1", "affected_side": "left"}, headers=admin
+    )
+    pid = r.json()["id"]
+    for path in ("/api/patients", f"/api/patients/{pid}", "/api/sessions"):
+        assert (await client.get(path, headers=admin)).status_code == 200
+    assert (await client.get(f"/api/sessions?patient_id={pid}", headers=admin)).status_code == 200
+    async with state.database.session() as db:
+        rows = list(await db.scalars(select(AuditLog).order_by(AuditLog.id)))
+    got = [(a.actor, a.action, a.object) for a in rows]
+    assert ("admin", "patient.list", None) in got
+    assert ("admin", "patient.read", f"patient:{pid}") in got
+    assert ("admin", "session.list", None) in got
+    assert ("admin", "session.list", f"patient:{pid}") in got
