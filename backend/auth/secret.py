@@ -23,12 +23,15 @@ def write_private(path: Path, text: str) -> None:
 
 
 def load_or_create_secret(settings: Settings) -> bytes:
-    """The configured key, else the one kept in data_dir, else a new one saved there.
+    """The configured key (``secret_key``, else the file ``secret_file``: a Docker secret),
+    else the one kept in data_dir, else a new one saved there.
 
     Persisting it keeps therapists logged in across restarts.
     """
     if settings.secret_key is not None:
         key = settings.secret_key.get_secret_value()
+    elif settings.secret_file is not None:
+        key = settings.secret_file.read_text(encoding="utf-8").strip()
     else:
         path = settings.secret_key_file
         if not path.exists():

@@ -266,3 +266,35 @@ async def test_reads_of_patient_data_are_audited(
     assert ("admin", "patient.read", f"patient:{pid}") in got
     assert ("admin", "session.list", None) in got
     assert ("admin", "session.list", f"patient:{pid}") in got
+
+
+def test_secrets_from_files(tmp_path: object) -> None:
+    """Docker secrets: the signing key and the database password come from files, so
+    neither sits in the compose file or the environment."""
+    from pathlib import Path
+
+    from backend.auth.secret import load_or_create_secret
+
+    base = Path(str(tmp_path))
+    (base / "key").write_text("k" * 48 + "\n")
+    (base / "pw").write_text("s3cret/pw@x\n")
+    env = {
+        "REHAB_SECRET_FILE": str(base / "key"),
+        "REHAB_DATABASE_URL": "postgresql://rehab@postgres:5432/rehab",
+        "REHAB_DATABASE_PASSWORD_FILE": str(base / "pw"),
+        "REHAB_DATA_DIR": str(base / "data"),
+    }
+    mp = pytest.MonkeyPatch()
+    try:
+        for k, v in env.items():
+            mp.setenv(k, v)
+        settings = Settings()
+    finally:
+        mp.undo()
+    assert load_or_create_secret(settings) == b"k" * 48
+    assert not settings.secret_key_file.exists()  # nothing generated beside it
+    from sqlalchemy.engine import make_url
+
+    url = make_url(settings.db_url)
+    assert url.password == "s3cret/pw@x" and url.drivername == "postgresql+psycopg"
+    assert "s3cret" not in repr(settings)

@@ -31,7 +31,7 @@ def serve_args(command: list[str]) -> argparse.Namespace:
 
 def test_services_and_health_checks() -> None:
     services = compose()["services"]
-    assert set(services) == {"zenoh", "postgres", "rehab"}
+    assert {"zenoh", "postgres", "rehab", "proxy"} <= set(services)
     assert services["zenoh"]["image"].startswith("eclipse/zenoh:")
     assert services["postgres"]["image"].startswith("postgres:")
     for name, svc in services.items():
@@ -70,30 +70,91 @@ def test_the_service_is_a_client_of_the_router_and_uses_postgres() -> None:
     rest_port = zenoh_cmd[zenoh_cmd.index("--rest-http-port") + 1]
     assert f":{rest_port}/" in " ".join(services["zenoh"]["healthcheck"]["test"])
 
-    # PostgreSQL: the database the postgres service creates, through the async driver
-    url = make_url(settings.db_url)
+    # PostgreSQL: the database the postgres service creates, through the async driver; the
+    # password is the secret both read, never written in the file
+    url = make_url(settings.database_url or "")
     pg = services["postgres"]["environment"]
     assert url.drivername == "postgresql+psycopg"
     assert (url.host, url.username, url.password, url.database) == (
         "postgres",
         pg["POSTGRES_USER"],
-        pg["POSTGRES_PASSWORD"],
+        None,
         pg["POSTGRES_DB"],
     )
+    assert "POSTGRES_PASSWORD" not in pg
+    assert pg["POSTGRES_PASSWORD_FILE"] == str(settings.database_password_file)
     assert url.port == 5432
     pg_check = " ".join(services["postgres"]["healthcheck"]["test"])
     assert f"-U {pg['POSTGRES_USER']}" in pg_check and f"-d {pg['POSTGRES_DB']}" in pg_check
 
-    # HTTP: listens on all interfaces of the container, published, health-checked there
+    # HTTP: listens on all interfaces of the container, published on the host's loopback
+    # only (the clinic network reaches it through the TLS proxy), health-checked there
     assert settings.host == "0.0.0.0"
-    assert f"{settings.port}:{settings.port}" in rehab["ports"]
+    assert rehab["ports"] == [f"127.0.0.1:{settings.port}:{settings.port}"]
     check = " ".join(rehab["healthcheck"]["test"])
     health = re.search(r"http://[^'\"]+", check)
     assert health is not None
     parts = urlsplit(health.group(0))
     assert parts.port == settings.port and parts.path == "/api/health"
-    assert str(settings.viser_port) + ":" + str(settings.viser_port) in rehab["ports"]
+    # the 3D view stays on the container's loopback (served through the API's proxy path)
+    assert settings.viser_host == "127.0.0.1"
 
     # the data directory is a volume
     assert str(settings.data_dir) == "/data"
     assert any(v.split(":")[1] == "/data" for v in rehab["volumes"])
+
+
+def secret_files(service: dict[str, Any], secrets: dict[str, Any]) -> dict[str, str]:
+    """In-container path -> the host file, for each secret the service gets."""
+    return {f"/run/secrets/{name}": secrets[name]["file"] for name in service["secrets"]}
+
+
+def test_secrets_come_from_files_not_from_this_file() -> None:
+    data = compose()
+    services, secrets = data["services"], data["secrets"]
+    rehab, pg = services["rehab"], services["postgres"]
+    env = {k: str(v) for k, v in rehab["environment"].items()}
+    given = secret_files(rehab, secrets)
+    assert env["REHAB_SECRET_FILE"] in given and env["REHAB_DATABASE_PASSWORD_FILE"] in given
+    # the service and PostgreSQL read the same password file
+    assert (
+        given[env["REHAB_DATABASE_PASSWORD_FILE"]]
+        == secret_files(pg, secrets)[pg["environment"]["POSTGRES_PASSWORD_FILE"]]
+    )
+    text = (REPO / "docker-compose.yml").read_text()
+    assert not re.search(r"(PASSWORD|SECRET_KEY)\s*:\s*(?!/run/secrets/)\S", text), (
+        "a secret value written in docker-compose.yml"
+    )
+    assert not re.search(r"postgres(ql)?://[^@\s]*:[^@\s]*@", text)  # no password in a URL
+    ignored = (REPO / ".gitignore").read_text().splitlines()
+    assert all(f.startswith("./secrets/") for f in (s["file"] for s in secrets.values()))
+    assert "/secrets/" in ignored
+
+
+def test_tls_proxy_in_front() -> None:
+    services = compose()["services"]
+    proxy, rehab = services["proxy"], services["rehab"]
+    assert proxy["image"].startswith("caddy:")
+    assert "443:443" in proxy["ports"]
+    assert proxy["depends_on"] == {"rehab": {"condition": "service_healthy"}}
+    mounts = {v.split(":")[1]: v.split(":")[0] for v in proxy["volumes"]}
+    caddyfile = (REPO / mounts["/etc/caddy/Caddyfile"]).read_text()
+    port = serve_args(rehab["command"]).port
+    assert re.search(rf"^\s*reverse_proxy rehab:{port}\s*$", caddyfile, re.M)
+    tls = re.search(r"^\s*tls (\S+) (\S+)\s*$", caddyfile, re.M)
+    assert tls is not None and {tls.group(1), tls.group(2)} <= set(mounts)
+    assert all(mounts[p].startswith("./secrets/") for p in (tls.group(1), tls.group(2)))
+    assert "Strict-Transport-Security" in caddyfile
+    # the service believes X-Forwarded-For from the proxy's fixed address, and from no one else
+    env = {k: str(v) for k, v in rehab["environment"].items()}
+    settings = Settings(forwarded_allow_ips=env["REHAB_FORWARDED_ALLOW_IPS"])
+    assert settings.forwarded_allow_ips == [proxy["networks"]["default"]["ipv4_address"]]
+    subnet = compose()["networks"]["default"]["ipam"]["config"][0]["subnet"]
+    import ipaddress
+
+    assert ipaddress.ip_address(settings.forwarded_allow_ips[0]) in ipaddress.ip_network(subnet)
+    # nothing but the proxy (and the devices' Zenoh router) is published beyond loopback
+    for name, svc in services.items():
+        for mapping in svc.get("ports", []):
+            if name not in ("proxy", "zenoh"):
+                assert mapping.startswith("127.0.0.1:"), (name, mapping)
