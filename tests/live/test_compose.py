@@ -147,7 +147,7 @@ def test_tls_proxy_in_front() -> None:
     assert "Strict-Transport-Security" in caddyfile
     # the service believes X-Forwarded-For from the proxy's fixed address, and from no one else
     env = {k: str(v) for k, v in rehab["environment"].items()}
-    settings = Settings(forwarded_allow_ips=env["REHAB_FORWARDED_ALLOW_IPS"])
+    settings = Settings(forwarded_allow_ips=env["REHAB_FORWARDED_ALLOW_IPS"])  # type: ignore[arg-type]
     assert settings.forwarded_allow_ips == [proxy["networks"]["default"]["ipv4_address"]]
     subnet = compose()["networks"]["default"]["ipam"]["config"][0]["subnet"]
     import ipaddress
