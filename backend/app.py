@@ -87,7 +87,7 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         # ---- [ui] 3D view (backend/viz.py): created here, its server starts on first use
         #      (GET/PUT /api/viz); the live side feeds it with app.state.viz.update(device, rows).
         app.state.viz = Viz(
-            host=settings.viser_host or settings.host,
+            host=settings.viser_host or "127.0.0.1",  # browsers go through /api/viz/view/
             port=settings.viser_port,
             enabled=settings.viser_enabled,
         )

@@ -103,7 +103,10 @@ class Settings(BaseSettings):
 
     # 3D view (viser, backend/viz.py): its own HTTP/WebSocket port, started on first use.
     viser_enabled: bool = True
-    viser_host: str | None = Field(default=None, description="Default: the API's host.")
+    viser_host: str | None = Field(
+        default=None,
+        description="Default: loopback; browsers reach the view through /api/viz/view/.",
+    )
     viser_port: int = Field(default=0, ge=0, le=65535, description="0 = any free port.")
 
     @field_validator("database_url")

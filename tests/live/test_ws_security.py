@@ -136,3 +136,42 @@ def test_overlay_tokens_stay_out_of_the_logs(
     joined = "\n".join(r.getMessage() for r in caplog.records if r.name.startswith("uvicorn"))
     assert "/api/ws/overlay?token=" in joined and "/overlay?token=" in joined  # logged...
     assert secret not in joined  # ...without the token
+
+
+def test_the_3d_view_only_through_the_authenticated_proxy(service: Service) -> None:
+    """viser listens on loopback; browsers get its page and its scene stream through
+    /api/viz/view/ as a logged-in therapist, and lose the stream with the login."""
+    import viser
+    from websockets.exceptions import ConnectionClosed
+    from websockets.typing import Subprotocol
+
+    assert httpx.get(service.url + "/api/viz/view/").status_code == 401
+    info = service.api.get("/api/viz").json()
+    assert info["path"] == "/api/viz/view/" and info["port"]
+    assert service.app.state.viz.host == "127.0.0.1"
+    page = service.api.get("/api/viz/view/")
+    assert page.status_code == 200 and page.headers["content-type"].startswith("text/html")
+    assert page.text.lstrip().lower().startswith("<!doctype html")
+
+    protocol = Subprotocol(f"viser-v{viser.__version__}")
+    refused(service, "/api/viz/view")  # no login: 1008
+    therapist(service, "viz-t1")
+    token = token_of(service, "viz-t1")
+    ws = connect(
+        ws_url(service, "/api/viz/view"),  # where viser's client connects: its page's URL
+        additional_headers={"Authorization": f"Bearer {token}"},
+        subprotocols=[protocol],
+        open_timeout=10,
+        max_size=None,
+    )
+    assert ws.subprotocol == protocol
+    first = ws.recv(timeout=10)
+    assert isinstance(first, bytes) and first  # viser's scene, msgpack
+    r = httpx.post(service.url + "/api/auth/logout", headers={"Authorization": f"Bearer {token}"})
+    assert r.status_code == 204
+    with pytest.raises(ConnectionClosed) as exc:
+        while True:
+            ws.recv(timeout=10)
+    assert exc.value.rcvd is not None and exc.value.rcvd.code == 1008
+    rows = service.api.get("/api/audit", params={"action": "viz.view"}).json()
+    assert rows and rows[0]["actor"] == "viz-t1"
