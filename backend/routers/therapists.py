@@ -32,10 +32,12 @@ async def list_therapists(db: DB) -> list[TherapistOut]:
 
 
 @router.post("", status_code=status.HTTP_201_CREATED)
-async def create_therapist(body: TherapistCreate, admin: AdminTherapist, db: DB) -> TherapistOut:
+async def create_therapist(
+    body: TherapistCreate, admin: AdminTherapist, db: DB, state: State
+) -> TherapistOut:
     therapist = Therapist(
         username=body.username,
-        password_hash=await hash_password_async(body.password),
+        password_hash=await hash_password_async(body.password, state.password_slots),
         is_admin=body.is_admin,
         active=True,
     )
