@@ -139,6 +139,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         ws="websockets-sansio",
         ws_per_message_deflate=settings.ws_compression,
         proxy_headers=False,  # the app believes X-Forwarded-* from forwarded_allow_ips only
+        ws_max_size=settings.max_body_bytes,  # nothing we read from a client is larger
     )
     return 0
 
@@ -239,6 +240,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             ws="websockets-sansio",
             ws_per_message_deflate=settings.ws_compression,
             proxy_headers=False,  # the app believes X-Forwarded-* from forwarded_allow_ips
+            ws_max_size=settings.max_body_bytes,
         )
     )
     stop = threading.Event()
