@@ -9,7 +9,8 @@ interface VizInfo {
   device: string | null;
 }
 
-/** The live 3D arm (viser, served by the backend on its own port), for one device. */
+/** The live 3D arm (viser on the backend's loopback, framed through the API's authenticated
+ * proxy path ``info.path``), for one device. */
 export function Viz3D({ device }: { device: string }) {
   const [open, setOpen] = useState(() => localStorage.getItem("rehab.viz") !== "closed");
   const [info, setInfo] = useState<VizInfo | null>(null);
