@@ -91,7 +91,8 @@ class AppState:
     database: Database
     signer: TokenSigner
     limiter: LoginLimiter
-    password_slots: CapacityLimiter  # Argon2 runs at once (settings.password_hash_concurrency)
+    # Argon2 runs at once (open_storage: settings.password_hash_concurrency)
+    password_slots: CapacityLimiter = field(default_factory=lambda: CapacityLimiter(2))
     live: LiveHooks = field(default_factory=NoLive)
     sockets: OpenSockets = field(default_factory=OpenSockets)  # therapists' WebSockets
     first_admin: AdminCredentials | None = None
