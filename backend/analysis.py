@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from backend import keys, recording, wire
+from backend import clinical, keys, recording, wire
 from estimators.output import Output, RowTable, concat_rows
 from estimators.params import PipelineParams
 from estimators.pipeline import Pipeline
@@ -268,6 +268,7 @@ _STAT_COLUMNS = (
     "upper_arm_azimuth_deg",
     "heading_converged",
     "state",
+    *clinical.COLUMNS,
 )
 
 
@@ -420,6 +421,8 @@ class DeviceRun:
             },
             "data_quality": quality,
             "params": self.params.to_json(),
+            # ROM in anatomical terms, movement quality, key figures (backend/clinical.py)
+            **clinical.sections(st, self.cycles, self.params.to_json()),
         }
 
 

@@ -56,6 +56,8 @@ class QualityParams:
     min_samples: int = 8
 
 
+DEFAULT_PARAMS = QualityParams()
+
 QUALITY_FIELDS = (
     "movement_time_s",
     "path_length_m",
