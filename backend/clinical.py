@@ -186,3 +186,17 @@ def _span(r: Mapping[str, Any]) -> str:
     if r.get("p5") is None:
         return "no data"
     return f"{r['p5']:.0f} to {r['p95']:.0f} deg"
+
+
+def summary_part(report: Mapping[str, Any]) -> dict[str, Any]:
+    """What a session's summary keeps of the clinical sections, for the patient's history
+    and its trends without reading every report: the session ROM per angle and the movement
+    quality's session medians (None for a report without them)."""
+    rom = report.get("anatomical_rom")
+    quality = report.get("movement_quality")
+    return {
+        "anatomical_rom_deg": rom.get("session") if isinstance(rom, Mapping) else None,
+        "movement_quality_median": (
+            quality.get("session_median") if isinstance(quality, Mapping) else None
+        ),
+    }

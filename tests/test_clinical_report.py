@@ -102,3 +102,13 @@ def test_empty_recording_has_empty_sections(tmp_path: Path) -> None:
     assert rep["movement_quality"]["cycles"] == []
     assert all(v is None for v in rep["movement_quality"]["session_median"].values())
     assert rep["key_figures"][0]["value"] is None
+
+
+def test_session_summary_keeps_rom_and_quality_for_the_history(report: dict[str, Any]) -> None:
+    from backend.live.worker import session_summary
+
+    s = session_summary(report)
+    assert s["anatomical_rom_deg"] == report["anatomical_rom"]["session"]
+    assert s["movement_quality_median"] == report["movement_quality"]["session_median"]
+    old = {k: v for k, v in report.items() if k not in ("anatomical_rom", "movement_quality")}
+    assert session_summary(old)["anatomical_rom_deg"] is None
