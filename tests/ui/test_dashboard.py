@@ -500,9 +500,10 @@ def test_report_and_export(page: Page, console: ConsoleLog, shared: dict[str, An
     with page.expect_download() as dl:
         page.locator("[data-export=fhir]").click()
     bundle = json.loads(Path(dl.value.path()).read_text(encoding="utf-8"))
-    assert bundle["resourceType"] == "Bundle" and bundle["entry"][0]["resource"]["identifier"][0][
-        "value"
-    ] == PATIENT
+    assert (
+        bundle["resourceType"] == "Bundle"
+        and bundle["entry"][0]["resource"]["identifier"][0]["value"] == PATIENT
+    )
     with page.expect_download() as dl:
         page.locator("[data-export=mcap]").click()
     assert Path(dl.value.path()).read_bytes()[:8] == b"\x89MCAP0\r\n"
