@@ -286,6 +286,7 @@ class DeviceRun:
     episodes: list[dict[str, Any]] = field(default_factory=list)
     unjudged: list[dict[str, Any]] = field(default_factory=list)
     _stats: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    _clinical: clinical.Cache = field(default_factory=dict)  # each cycle measured once
     # rows not yet formatted: a RowTable as its (matrix, state), which the cyclic collector
     # does not track (a live service holds ~1000 polls per device here; as objects, every
     # full collection walked them all: 100+ ms pauses of the live loop at 50 devices)
@@ -422,7 +423,7 @@ class DeviceRun:
             "data_quality": quality,
             "params": self.params.to_json(),
             # ROM in anatomical terms, movement quality, key figures (backend/clinical.py)
-            **clinical.sections(st, self.cycles, self.params.to_json()),
+            **clinical.sections(st, self.cycles, self.params.to_json(), self._clinical),
         }
 
 

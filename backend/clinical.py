@@ -51,26 +51,35 @@ ELBOW = "elbow_flexion_deg"
 PATH_POINTS = 40  # per cycle in the report: enough for a plot from above
 
 
+Cache = dict[tuple[str, float, float], dict[str, Any]]
+
+
 def rom_section(
     t: NDArray[np.float64],
     angles: Mapping[str, NDArray[np.float64]],
     cycles: Sequence[Mapping[str, Any]],
     valid: NDArray[np.bool_] | None = None,
+    cache: Cache | None = None,
 ) -> dict[str, Any]:
     """Session and per-cycle ROM statistics of every named angle column (°) over the rows
-    where ``valid`` holds; ``t`` (N,) s increasing."""
+    where ``valid`` holds; ``t`` (N,) s increasing. ``cache``: per-cycle results kept from an
+    earlier call with the same rows (a completed cycle's rows do not change)."""
     mask = np.ones(len(t), dtype=bool) if valid is None else valid
     per_cycle = []
     for c in cycles:
-        i0, i1 = np.searchsorted(t, [c["start"], c["end"]], side="left")
-        sub = {k: np.asarray(a)[i0:i1] for k, a in angles.items()}
-        per_cycle.append(
-            {
+        key = ("rom", c["start"], c["end"])
+        row = cache.get(key) if cache is not None else None
+        if row is None:
+            i0, i1 = np.searchsorted(t, [c["start"], c["end"]], side="left")
+            sub = {k: np.asarray(a)[i0:i1] for k, a in angles.items()}
+            row = {
                 "start": c["start"],
                 "end": c["end"],
                 "angles": anatomy.rom_table(sub, mask[i0:i1]),
             }
-        )
+            if cache is not None:
+                cache[key] = row
+        per_cycle.append(row)
     return {"session": anatomy.rom_table(angles, mask), "cycles": per_cycle}
 
 
@@ -79,11 +88,17 @@ def quality_section(
     wrist: NDArray[np.float64],
     cycles: Sequence[Mapping[str, Any]],
     params: mq.QualityParams = mq.DEFAULT_PARAMS,
+    cache: Cache | None = None,
 ) -> dict[str, Any]:
     """Movement quality of each cycle's wrist path (``wrist`` (N, 3) m at ``t`` (N,) s),
-    with the session medians and each path from above (x, y; m, ≤ ``PATH_POINTS`` points)."""
+    with the session medians and each path from above (x, y; m, ≤ ``PATH_POINTS`` points).
+    ``cache`` as for :func:`rom_section`."""
     rows = []
     for c in cycles:
+        key = ("quality", c["start"], c["end"])
+        if cache is not None and key in cache:
+            rows.append(cache[key])
+            continue
         i0, i1 = np.searchsorted(t, [c["start"], c["end"]], side="right")
         i0 = max(int(i0) - 1, 0)  # the sample at the start belongs to the cycle
         tc, pc = t[i0:i1], wrist[i0:i1]
@@ -100,6 +115,8 @@ def quality_section(
                 "path_xy": np.round(xy, 4).tolist(),
             }
         )
+        if cache is not None:
+            cache[key] = rows[-1]
     medians = {}
     for k in mq.QUALITY_FIELDS:
         vals = np.array([r[k] for r in rows if r[k] is not None], dtype=np.float64)
@@ -150,10 +167,13 @@ def sections(
     st: Mapping[str, NDArray[Any]],
     cycles: Sequence[Mapping[str, Any]],
     params: Mapping[str, Any],
+    cache: Cache | None = None,
 ) -> dict[str, Any]:
     """The report's clinical sections from the analysis' accumulated row columns ``st``
     (``t``, ``heading_converged``, ``elbow_angle_deg`` and :data:`COLUMNS`) and its judged
-    cycles. ``params``: the session's parameters (``side`` if given, else right)."""
+    cycles. ``params``: the session's parameters (``side`` if given, else right).
+    ``cache``: a dict kept by the caller between calls over the same growing rows (the live
+    service asks for reports mid-session: each cycle is measured once)."""
     n = len(st.get("t", ()))
     t = np.asarray(st["t"], dtype=np.float64) if n else np.zeros(0)
     q = np.asarray(st["q_ra"], dtype=np.float64).reshape(-1, 4) if n else np.zeros((0, 4))
@@ -168,9 +188,9 @@ def sections(
         "note": FRAME_NOTE,
         "convention": ISB_NOTE.format(min_elev=ap.min_elevation_deg),
         "side": side,
-        **rom_section(t, angles, cycles, conv),
+        **rom_section(t, angles, cycles, conv, cache),
     }
-    quality = quality_section(t, wrist, cycles)
+    quality = quality_section(t, wrist, cycles, cache=cache)
     return {
         "anatomical_rom": rom,
         "movement_quality": quality,

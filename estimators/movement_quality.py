@@ -23,13 +23,14 @@ Per movement (a cycle of a repetitive task), from positions ``p`` (N, 3) in metr
 
 Both smoothness measures are dimensionless: unchanged by the movement's amplitude and
 duration, lower (more negative) for less smooth movements. Samples need not be uniform in
-time: the path is resampled linearly onto a uniform grid (``resample_hz``, default the
-median rate) before the speed is taken; a zero-lag Butterworth low-pass on the positions
-(``lowpass_hz``; None for the raw path) keeps sensor noise out of the derivatives.
+time: the path is resampled linearly onto a uniform grid (``resample_hz``, default the median
+rate rounded to 0.01 Hz) before the speed is taken; a zero-lag Butterworth low-pass on the
+positions (``lowpass_hz``; None for the raw path) keeps sensor noise out of the derivatives.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import TypeAlias
@@ -154,6 +155,13 @@ def movement_units(speed: Array, prominence: float = 0.1, min_prominence: float 
     return int(len(peaks))
 
 
+@functools.lru_cache(maxsize=64)
+def _butter(order: int, cutoff_hz: float, fs: float) -> Array:
+    """Butterworth low-pass as second-order sections (its design costs more than its use)."""
+    sos: Array = signal.butter(order, cutoff_hz, fs=fs, output="sos")
+    return sos
+
+
 def uniform_path(
     t: Array, p: Array, params: QualityParams = QualityParams()
 ) -> tuple[Array, float]:
@@ -161,12 +169,13 @@ def uniform_path(
     (zero lag); returns ``(positions (M, 3), fs Hz)``."""
     t = np.asarray(t, dtype=np.float64)
     p = np.asarray(p, dtype=np.float64)
-    fs = params.resample_hz or 1.0 / float(np.median(np.diff(t)))
+    # the median rate to 0.01 Hz: the grid (and its filter design) repeats from cycle to cycle
+    fs = params.resample_hz or round(1.0 / float(np.median(np.diff(t))), 2)
     n = max(int(math.floor((t[-1] - t[0]) * fs + 1e-9)) + 1, 2)
     tu = t[0] + np.arange(n) / fs
     pu = np.stack([np.interp(tu, t, p[:, j]) for j in range(p.shape[1])], axis=1)
     if params.lowpass_hz is not None and params.lowpass_hz < fs / 2:
-        sos = signal.butter(params.lowpass_order, params.lowpass_hz, fs=fs, output="sos")
+        sos = _butter(params.lowpass_order, params.lowpass_hz, fs).copy()  # scipy writes to it
         pad = min(3 * (2 * len(sos) + 1), n - 1)  # filtfilt's default padding, capped
         if pad > 0:
             pu = signal.sosfiltfilt(sos, pu, axis=0, padlen=pad)

@@ -112,3 +112,28 @@ def test_session_summary_keeps_rom_and_quality_for_the_history(report: dict[str,
     assert s["movement_quality_median"] == report["movement_quality"]["session_median"]
     old = {k: v for k, v in report.items() if k not in ("anatomical_rom", "movement_quality")}
     assert session_summary(old)["anatomical_rom_deg"] is None
+
+
+def test_live_reports_measure_each_cycle_once(short_session: Session) -> None:
+    """A report asked for again and again mid-session (the live service) measures each
+    completed cycle once, and says the same as a fresh computation."""
+    from backend import clinical
+    from backend.analysis import DeviceRun
+    from estimators.params import PipelineParams
+
+    run = DeviceRun("sim01", PipelineParams())
+    sizes: list[int] = []
+    reported = 0
+    for m in short_session.messages:
+        run.pipeline.feed(m)
+        run.take(run.pipeline.poll())
+        if len(run.cycles) > reported and len(run.cycles) % 4 == 0:
+            reported = len(run.cycles)
+            rep = run.report()
+            sizes.append(len(run._clinical))
+            fresh = clinical.sections(
+                {k: np.concatenate(v) for k, v in run._stats.items()}, run.cycles, {}
+            )
+            assert rep["movement_quality"] == fresh["movement_quality"]
+            assert rep["anatomical_rom"]["cycles"] == fresh["anatomical_rom"]["cycles"]
+    assert len(sizes) >= 3 and sizes[-1] == 2 * reported  # one ROM, one quality entry each
