@@ -209,6 +209,7 @@ def render(report: Mapping[str, Any], meta: ExportMeta) -> bytes:
 
     story.append(Paragraph("Cycles", h2))
     q_by = {(c["start"], c["end"]): c for c in quality.get("cycles", [])}
+    rom_by = {(c["start"], c["end"]): c["angles"] for c in rom.get("cycles", [])}
     rows = [
         [
             "#",
@@ -216,7 +217,8 @@ def render(report: Mapping[str, Any], meta: ExportMeta) -> bytes:
             "duration (s)",
             "verdict",
             "outside (%)",
-            "max shoulder disp. (cm)",
+            "max disp. (cm)",
+            "elevation range (°)",
             "path (m)",
             "straightness",
             "units",
@@ -226,6 +228,7 @@ def render(report: Mapping[str, Any], meta: ExportMeta) -> bytes:
     cycles = report.get("cycles", [])
     for i, c in enumerate(cycles[:MAX_CYCLE_ROWS], start=1):
         q = q_by.get((c["start"], c["end"]), {})
+        elev = rom_by.get((c["start"], c["end"]), {}).get("shoulder_elevation_deg", {})
         rows.append(
             [
                 i,
@@ -234,13 +237,14 @@ def render(report: Mapping[str, Any], meta: ExportMeta) -> bytes:
                 "compensatory" if c["compensatory"] else "ok",
                 _fmt(c["outside_fraction"], 0, 100),
                 _fmt(c.get("max_displacement_m"), 1, 100),
+                _fmt(elev.get("range"), 0),
                 _fmt(q.get("path_length_m"), 2),
                 _fmt(q.get("straightness_ratio"), 2),
                 _fmt(q.get("movement_units"), 0),
                 _fmt(q.get("sparc"), 2),
             ]
         )
-    widths = [8, 16, 18, 22, 18, 30, 16, 20, 12, 16]
+    widths = [8, 15, 18, 22, 16, 20, 26, 15, 18, 12, 16]
     table = _table(rows, [w * mm for w in widths], font=6.8)
     table.setStyle(
         TableStyle(

@@ -450,6 +450,8 @@ def test_report_and_export(page: Page, console: ConsoleLog, shared: dict[str, An
     expect(rom.locator("[data-table=rom]")).to_contain_text("Shoulder plane of elevation")
     expect(rom.locator("[data-table=rom] tbody tr").nth(1)).to_contain_text(re.compile(r"\d+°"))
     expect(rom.locator("[data-note=frame]")).to_contain_text("stands in for the trunk")
+    rom.locator("summary").click()  # per cycle, folded by default
+    expect(rom.locator("[data-table=rom-cycles] tbody tr")).to_have_count(total)
     mq = page.locator("section[aria-labelledby=mq-title]")
     expect(mq.locator("[data-table=movement-quality] tbody tr")).to_have_count(total + 1)
     expect(mq.locator("[data-median=sparc]")).to_have_text(re.compile(r"^-\d+\.\d\d$"))

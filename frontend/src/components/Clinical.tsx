@@ -63,11 +63,45 @@ export function RomTable({ rom, caption }: { rom: Record<string, Range>; caption
   );
 }
 
-export function AnatomicalRomSection({ rom }: { rom: AnatomicalRom }) {
+export function AnatomicalRomSection({ rom, t0 }: { rom: AnatomicalRom; t0: number }) {
+  const names = Object.keys(rom.session);
   return (
     <section class="card" aria-labelledby="rom-title">
       <h2 id="rom-title">Range of motion, anatomical (ISB)</h2>
       <RomTable rom={rom.session} caption="Range of motion of the session, degrees" />
+      {rom.cycles.length > 0 && (
+        <details>
+          <summary>Per cycle ({rom.cycles.length} cycles): p5 – p95 and active range</summary>
+          <div class="table-wrap">
+            <table class="table" data-table="rom-cycles">
+              <caption class="sr-only">Range of motion per cycle, degrees</caption>
+              <thead>
+                <tr>
+                  <th scope="col">#</th>
+                  <th scope="col">Start</th>
+                  {names.map((n) => (
+                    <th scope="col" key={n}>
+                      {ANGLE_NAMES[n] ?? n}
+                    </th>
+                  ))}
+                </tr>
+              </thead>
+              <tbody>
+                {rom.cycles.map((c, i) => (
+                  <tr key={i}>
+                    <td>{i + 1}</td>
+                    <td>{num(c.start - t0, 1, "s")}</td>
+                    {names.map((n) => {
+                      const r = c.angles[n];
+                      return <td key={n}>{r && r.range != null ? `${deg(r.p5)} – ${deg(r.p95)} (${deg(r.range)})` : "–"}</td>;
+                    })}
+                  </tr>
+                ))}
+              </tbody>
+            </table>
+          </div>
+        </details>
+      )}
       <p class="muted small" data-note="frame">
         {rom.note} {rom.convention}
       </p>

@@ -229,7 +229,7 @@ export function ReportPage({ id }: { id: number }) {
         </dl>
       </section>
 
-      {report?.anatomical_rom && <AnatomicalRomSection rom={report.anatomical_rom} />}
+      {report?.anatomical_rom && <AnatomicalRomSection rom={report.anatomical_rom} t0={t0} />}
       {report?.movement_quality && <MovementQualitySection quality={report.movement_quality} t0={t0} />}
 
       <section class="card" aria-labelledby="cycles-title">
