@@ -156,10 +156,29 @@ def movement_units(speed: Array, prominence: float = 0.1, min_prominence: float 
 
 
 @functools.lru_cache(maxsize=64)
-def _butter(order: int, cutoff_hz: float, fs: float) -> Array:
-    """Butterworth low-pass as second-order sections (its design costs more than its use)."""
+def _lowpass(order: int, cutoff_hz: float, fs: float) -> tuple[Array, Array]:
+    """Butterworth low-pass as second-order sections and their steady-state initial
+    conditions (designing them cost more than filtering a cycle)."""
     sos: Array = signal.butter(order, cutoff_hz, fs=fs, output="sos")
-    return sos
+    zi: Array = signal.sosfilt_zi(sos)
+    return sos, zi
+
+
+def filtfilt(x: Array, order: int, cutoff_hz: float, fs: float) -> Array:
+    """Zero-lag Butterworth low-pass of ``x`` (N, k) along axis 0: scipy.signal.sosfiltfilt's
+    method (odd extension by its default pad length, steady-state initial conditions), with
+    the design cached."""
+    sos, zi = _lowpass(order, cutoff_hz, fs)
+    pad = min(3 * (2 * len(sos) + 1), len(x) - 1)
+    if pad <= 0:
+        return x
+    ext = np.concatenate((2 * x[:1] - x[pad:0:-1], x, 2 * x[-1:] - x[-2 : -pad - 2 : -1]))
+    sos = sos.copy()  # scipy's sosfilt wants a writable array
+    y, _ = signal.sosfilt(sos, ext, axis=0, zi=zi[:, :, None] * ext[0])
+    y = y[::-1]
+    y, _ = signal.sosfilt(sos, y, axis=0, zi=zi[:, :, None] * y[0])
+    out: Array = y[::-1][pad:-pad]
+    return out
 
 
 def uniform_path(
@@ -175,10 +194,7 @@ def uniform_path(
     tu = t[0] + np.arange(n) / fs
     pu = np.stack([np.interp(tu, t, p[:, j]) for j in range(p.shape[1])], axis=1)
     if params.lowpass_hz is not None and params.lowpass_hz < fs / 2:
-        sos = _butter(params.lowpass_order, params.lowpass_hz, fs).copy()  # scipy writes to it
-        pad = min(3 * (2 * len(sos) + 1), n - 1)  # filtfilt's default padding, capped
-        if pad > 0:
-            pu = signal.sosfiltfilt(sos, pu, axis=0, padlen=pad)
+        pu = filtfilt(pu, params.lowpass_order, params.lowpass_hz, fs)
     return pu, fs
 
 

@@ -118,3 +118,15 @@ def test_irregular_sampling_and_bad_rows() -> None:
     still = mq.measure(t, np.zeros_like(p))
     assert math.isnan(still["sparc"]) and math.isnan(still["ldlj"])
     assert still["path_length_m"] == 0.0
+
+
+@pytest.mark.parametrize("n", [2, 5, 10, 130, 2000])
+def test_filtfilt_is_scipys_sosfiltfilt(n: int) -> None:
+    from scipy import signal
+
+    x = np.random.default_rng(n).normal(size=(n, 3))
+    sos = signal.butter(2, 6.0, fs=25.0, output="sos")
+    pad = min(9, n - 1)
+    assert np.array_equal(
+        mq.filtfilt(x, 2, 6.0, 25.0), signal.sosfiltfilt(sos, x, axis=0, padlen=pad)
+    )
