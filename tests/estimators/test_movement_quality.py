@@ -53,9 +53,9 @@ def test_sparc_and_ldlj_do_not_depend_on_amplitude_or_duration(params: mq.Qualit
         assert m["mean_speed_m_s"] == pytest.approx(amplitude / duration, rel=1e-9)
 
 
-def test_published_values_of_a_minimum_jerk_reach() -> None:
-    """SPARC ≈ −1.41 for a minimum-jerk reach (Balasubramanian et al. 2015); its speed-based
-    LDLJ in closed form."""
+def test_minimum_jerk_reference_values() -> None:
+    """A minimum-jerk reach: SPARC −1.41 (a regression value of this implementation, not a
+    figure quoted from the paper) and the speed-based LDLJ against its closed form."""
     t, p = reach(1.0, 0.3, fs=1000.0)
     v = speed_of(t, p)
     assert mq.sparc(v, 1000.0) == pytest.approx(-1.41, abs=0.02)
