@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from backend import keys, recording, wire
+from backend import clinical, keys, recording, wire
 from estimators.output import Output, RowTable, concat_rows
 from estimators.params import PipelineParams
 from estimators.pipeline import Pipeline
@@ -268,6 +268,7 @@ _STAT_COLUMNS = (
     "upper_arm_azimuth_deg",
     "heading_converged",
     "state",
+    *clinical.COLUMNS,
 )
 
 
@@ -285,6 +286,7 @@ class DeviceRun:
     episodes: list[dict[str, Any]] = field(default_factory=list)
     unjudged: list[dict[str, Any]] = field(default_factory=list)
     _stats: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    _clinical: clinical.Cache = field(default_factory=dict)  # each cycle measured once
     # rows not yet formatted: a RowTable as its (matrix, state), which the cyclic collector
     # does not track (a live service holds ~1000 polls per device here; as objects, every
     # full collection walked them all: 100+ ms pauses of the live loop at 50 devices)
@@ -420,6 +422,8 @@ class DeviceRun:
             },
             "data_quality": quality,
             "params": self.params.to_json(),
+            # ROM in anatomical terms, movement quality, key figures (backend/clinical.py)
+            **clinical.sections(st, self.cycles, self.params.to_json(), self._clinical),
         }
 
 

@@ -66,6 +66,10 @@ def main(argv: list[str] | None = None) -> int:
 
     evaluate.add_parser(sub)
 
+    from backend.exports import cli as export_cli
+
+    export_cli.add_parser(sub)
+
     from backend import cli_live
 
     cli_live.add_parser(sub)

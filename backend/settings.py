@@ -101,6 +101,11 @@ class Settings(BaseSettings):
     )
     device_offline_after_s: float = Field(default=5.0, gt=0)
 
+    # Clinical records: a FHIR R4 server's base URL that receives a session's Bundle on
+    # request (POST /api/sessions/{id}/fhir/send); unset = off.
+    fhir_url: str | None = None
+    fhir_timeout_s: float = Field(default=10.0, gt=0)
+
     # 3D view (viser, backend/viz.py): its own HTTP/WebSocket port, started on first use.
     viser_enabled: bool = True
     viser_host: str | None = Field(

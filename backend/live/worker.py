@@ -20,7 +20,7 @@ from typing import Any, Protocol
 
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from backend import wire
+from backend import clinical, wire
 from backend.db.sessions import record_cycle, store_nominal_shoulder
 from backend.deps import LiveUnavailable
 from backend.live import feed
@@ -85,6 +85,7 @@ def session_summary(report: dict[str, Any]) -> dict[str, Any]:
         "upper_arm_elevation_deg": report.get("upper_arm_elevation_deg"),
         "upper_arm_azimuth_deg": report.get("upper_arm_azimuth_deg"),
         "rejected_messages": sum(report["data_quality"]["rejected"].values()),
+        **clinical.summary_part(report),  # anatomical ROM, movement quality medians
     }
 
 

@@ -1,5 +1,6 @@
 """Session exports: the report (JSON), the per-sample estimates and details (CSV), the raw
-recording.
+recording; for the clinic's records the PDF report and the FHIR R4 Bundle (also sent to a
+configured FHIR server on request), and the MCAP file for Foxglove (backend/exports).
 
 Every export is written to the audit log. A session the service did not stop (killed)
 has its outputs regenerated from its recording on first request. A running session
@@ -8,7 +9,10 @@ exports what it has so far: a provisional report, the rows and messages flushed 
 
 from __future__ import annotations
 
-from datetime import datetime
+import asyncio
+import io
+import json
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -16,12 +20,14 @@ from fastapi import APIRouter, HTTPException, status
 from fastapi.responses import FileResponse, Response
 from pydantic import BaseModel, ConfigDict
 
+from backend.analysis import read_estimates
 from backend.auth.guards import CurrentTherapist
 from backend.db.audit import audit
 from backend.db.errors import NotFound
 from backend.db.models import Session
 from backend.db.sessions import get_session
 from backend.deps import DB, State
+from backend.exports import ExportMeta, fhir, mcap_file
 from backend.live import files
 from backend.live.manager import LiveManager
 from backend.schemas.sessions import Range, Spread
@@ -267,4 +273,169 @@ async def session_recording(
     await db.commit()
     return _file(
         path, "application/gzip", f"session-{session.id}.jsonl.gz", session.status == "active"
+    )
+
+
+# ---- clinical exports: PDF report, FHIR R4 Bundle (and sending it), MCAP (backend/exports)
+
+
+async def _clinical(state: State, session: Session) -> tuple[dict[str, Any], ExportMeta]:
+    """The session's report (provisional while it runs) and what the exports say about it."""
+    provisional = session.status == "active"
+    report: dict[str, Any] | None
+    if provisional:
+        manager = _manager(state)
+        report = manager.live_report(session.id, session.device.name) if manager else None
+        if report is None:
+            raise HTTPException(status.HTTP_409_CONFLICT, "the live side does not run it")
+    else:
+        report = await files.ensure_outputs(
+            _recording(state, session), session.params, session.device.name
+        )
+        if report is None:
+            raise HTTPException(status.HTTP_404_NOT_FOUND, "the session's recording is missing")
+    meta = ExportMeta(
+        session=str(session.id),
+        device=session.device.name,
+        patient_code=session.patient.code,
+        started_at=_aware(session.started_at),
+        stopped_at=_aware(session.stopped_at),
+        therapist=session.therapist.username if session.therapist else None,
+        provisional=provisional,
+    )
+    return report, meta
+
+
+def _aware(t: datetime | None) -> datetime | None:
+    """Stored times are UTC; SQLite gives them back naive."""
+    return t.replace(tzinfo=UTC) if t is not None and t.tzinfo is None else t
+
+
+@router.get(
+    "/report.pdf",
+    response_class=Response,
+    responses={
+        200: {
+            "description": "The session report, one or two pages: key figures, plots, range "
+            "of motion, movement quality, cycles",
+            "content": {"application/pdf": {"schema": {"type": "string", "format": "binary"}}},
+        },
+        **_ERRORS,
+    },
+)
+async def session_report_pdf(
+    session_id: int, therapist: CurrentTherapist, state: State, db: DB
+) -> Response:
+    session = await _load(db, session_id)
+    report, meta = await _clinical(state, session)
+    from backend.exports import pdf  # matplotlib and reportlab: loaded on first use
+
+    body = await asyncio.to_thread(pdf.render, report, meta)
+    audit(db, therapist, "export.pdf", f"session:{session.id}", {"provisional": meta.provisional})
+    await db.commit()
+    return Response(
+        body,
+        media_type="application/pdf",
+        headers={"Content-Disposition": f'attachment; filename="session-{session.id}.pdf"'},
+    )
+
+
+@router.get(
+    "/fhir",
+    response_class=Response,
+    responses={
+        200: {
+            "description": "A FHIR R4 Bundle (collection): DiagnosticReport and Observations "
+            "(key figures, range of motion, movement quality) about a pseudonymous Patient",
+            "content": {"application/fhir+json": {"schema": {"type": "object"}}},
+        },
+        **_ERRORS,
+    },
+)
+async def session_fhir(
+    session_id: int, therapist: CurrentTherapist, state: State, db: DB
+) -> Response:
+    session = await _load(db, session_id)
+    report, meta = await _clinical(state, session)
+    body = json.dumps(fhir.bundle(report, meta))
+    audit(db, therapist, "export.fhir", f"session:{session.id}", {"provisional": meta.provisional})
+    await db.commit()
+    return Response(body, media_type="application/fhir+json")
+
+
+class FhirSent(BaseModel):
+    url: str
+    response: dict[str, Any]  # the server's answer (a transaction-response Bundle)
+
+
+@router.post(
+    "/fhir/send",
+    responses={
+        409: {"description": "No FHIR endpoint is configured, or the session is still running"},
+        502: {"description": "The FHIR server could not be reached or refused the Bundle"},
+        404: _ERRORS[404],
+    },
+)
+async def session_fhir_send(
+    session_id: int, therapist: CurrentTherapist, state: State, db: DB
+) -> FhirSent:
+    """Send the session's Bundle (as a transaction) to the configured FHIR server
+    (``REHAB_FHIR_URL``). Only a finished session: records are not sent provisionally."""
+    url = state.settings.fhir_url
+    if not url:
+        raise HTTPException(
+            status.HTTP_409_CONFLICT, "no FHIR endpoint configured (REHAB_FHIR_URL)"
+        )
+    session = await _load(db, session_id)
+    if session.status == "active":
+        raise HTTPException(status.HTTP_409_CONFLICT, "the session is still running")
+    report, meta = await _clinical(state, session)
+    try:
+        answer = await asyncio.to_thread(
+            fhir.send, report, meta, url, state.settings.fhir_timeout_s
+        )
+    except fhir.FhirSendError as exc:
+        audit(db, therapist, "export.fhir_send", f"session:{session.id}", {"ok": False})
+        await db.commit()
+        raise HTTPException(status.HTTP_502_BAD_GATEWAY, str(exc)) from None
+    audit(db, therapist, "export.fhir_send", f"session:{session.id}", {"ok": True})
+    await db.commit()
+    return FhirSent(url=url, response=answer)
+
+
+@router.get(
+    "/recording.mcap",
+    response_class=Response,
+    responses={
+        200: {
+            "description": "The recording, the estimates and the cycle verdicts as MCAP (JSON "
+            "messages with JSON Schemas; opens in Foxglove)",
+            "content": {
+                "application/octet-stream": {"schema": {"type": "string", "format": "binary"}}
+            },
+        },
+        **_ERRORS,
+    },
+)
+async def session_mcap(
+    session_id: int, therapist: CurrentTherapist, state: State, db: DB
+) -> Response:
+    session = await _load(db, session_id)
+    path = await _complete(state, session)
+    report, meta = await _clinical(state, session)
+    est_path = files.outputs_dir(path) / "estimates.csv"
+
+    def build() -> bytes:
+        buf = io.BytesIO()
+        estimates = read_estimates(est_path) if est_path.exists() else None
+        mcap_file.write(buf, path, report, estimates, meta, state.settings.key_prefix)
+        return buf.getvalue()
+
+    body = await asyncio.to_thread(build)
+    audit(db, therapist, "export.mcap", f"session:{session.id}", {"provisional": meta.provisional})
+    await db.commit()
+    return Response(
+        body,
+        media_type="application/octet-stream",
+        headers={"Content-Disposition": f'attachment; filename="session-{session.id}.mcap"'},
     )

@@ -443,16 +443,38 @@ def test_report_and_export(page: Page, console: ConsoleLog, shared: dict[str, An
     imu = quality.locator("dt", has_text="IMU samples").locator("xpath=following-sibling::dd")
     assert int(imu.inner_text().replace(",", "")) > 1000
 
-    # Four exports, each a real link a keyboard reaches.
+    # Range of motion in anatomical terms, with the note that the robot stands in for the
+    # trunk; movement quality per cycle with the session medians; the wrist paths.
+    rom = page.locator("section[aria-labelledby=rom-title]")
+    expect(rom.locator("[data-table=rom] tbody tr")).to_have_count(4)
+    expect(rom.locator("[data-table=rom]")).to_contain_text("Shoulder plane of elevation")
+    expect(rom.locator("[data-table=rom] tbody tr").nth(1)).to_contain_text(re.compile(r"\d+°"))
+    expect(rom.locator("[data-note=frame]")).to_contain_text("stands in for the trunk")
+    rom.locator("summary").click()  # per cycle, folded by default
+    expect(rom.locator("[data-table=rom-cycles] tbody tr")).to_have_count(total)
+    mq = page.locator("section[aria-labelledby=mq-title]")
+    expect(mq.locator("[data-table=movement-quality] tbody tr")).to_have_count(total + 1)
+    expect(mq.locator("[data-median=sparc]")).to_have_text(re.compile(r"^-\d+\.\d\d$"))
+    expect(mq.locator("[data-plot=report-sparc] canvas")).to_be_visible(timeout=20_000)
+    assert colour_pixels(page, "[data-plot=report-sparc] canvas", DISP) > 50
+    paths = mq.locator("[data-plot=wrist-paths] svg polyline")
+    expect(paths).to_have_count(total)
+    assert mq.locator("polyline[data-verdict=compensatory]").count() >= 1
+    assert mq.locator("polyline[data-verdict=proper]").count() >= 1
+    mq.scroll_into_view_if_needed()
+    shot(page, "report-movement-quality")
+
+    # Seven exports, each a real link a keyboard reaches.
     exports = page.locator("[data-export]")
-    expect(exports).to_have_count(4)
+    expect(exports).to_have_count(7)
     assert [e.get_attribute("data-export") for e in exports.all()] == [
-        "json", "csv", "details", "recording"
+        "json", "csv", "details", "recording", "pdf", "fhir", "mcap"
     ]  # fmt: skip
     expect(page.get_by_role("link", name="Report (JSON)")).to_be_visible()
     expect(page.get_by_role("link", name="Estimates (CSV)")).to_be_visible()
     expect(page.get_by_role("link", name="Details (CSV)")).to_be_visible()
     expect(page.get_by_role("link", name="Raw recording")).to_be_visible()
+    expect(page.get_by_role("link", name="Report (PDF)")).to_be_visible()
     page.wait_for_timeout(300)
     shot(page, "report", full_page=True)
 
@@ -474,6 +496,19 @@ def test_report_and_export(page: Page, console: ConsoleLog, shared: dict[str, An
         page.locator("[data-export=recording]").click()
     first = gzip.decompress(Path(dl.value.path()).read_bytes()).splitlines()[0]
     assert json.loads(first)["key"].startswith(f"rehab/{DEVICE}/"), first[:100]
+    with page.expect_download() as dl:
+        page.locator("[data-export=pdf]").click()
+    assert Path(dl.value.path()).read_bytes().startswith(b"%PDF")
+    with page.expect_download() as dl:
+        page.locator("[data-export=fhir]").click()
+    bundle = json.loads(Path(dl.value.path()).read_text(encoding="utf-8"))
+    assert (
+        bundle["resourceType"] == "Bundle"
+        and bundle["entry"][0]["resource"]["identifier"][0]["value"] == PATIENT
+    )
+    with page.expect_download() as dl:
+        page.locator("[data-export=mcap]").click()
+    assert Path(dl.value.path()).read_bytes()[:8] == b"\x89MCAP0\r\n"
     no_console_errors(console)
 
 
@@ -502,7 +537,8 @@ def test_patient_history(
     # Trends of the compensatory-cycle share, the elbow's and the shoulder's range of motion
     # (upper-arm elevation and azimuth), each with its session drawn.
     for plot, colours in (("trend-compensatory", [COMP]), ("trend-elbow", [ELBOW]),
-                          ("trend-shoulder", [ELEV, AZIM])):  # fmt: skip
+                          ("trend-shoulder", [ELEV, AZIM]), ("trend-isb", [ELEV]),
+                          ("trend-sparc", [DISP])):  # fmt: skip
         canvas = page.locator(f"[data-plot={plot}] canvas")
         expect(canvas).to_be_visible(timeout=15_000)
         for colour in colours:
@@ -524,6 +560,9 @@ def test_patient_history(
         re.compile(r"^\d+\.\d cm / \d+\.\d cm$")
     )
     expect(page.get_by_label("Last session")).to_contain_text(re.compile(r"Elbow range.*\d+°"))
+    expect(page.locator("section[aria-labelledby=compare-title]")).to_contain_text(
+        "Comparing needs two finished sessions"
+    )
     shot(page, "patient-history", full_page=True)
     page.remove_listener("request", on_request)
     assert not reports, reports

@@ -12,6 +12,11 @@ export interface SessionFigures {
   azimRange: number | null;
   dispMedian: number | null;
   dispP95: number | null;
+  /** ISB shoulder elevation's active range (anatomical ROM) */
+  isbElevRange: number | null;
+  sparcMedian: number | null;
+  straightnessMedian: number | null;
+  unitsMedian: number | null;
 }
 
 function n(x: unknown): number | null {
@@ -48,6 +53,10 @@ export function figuresOf(s: SessionSummary | null | undefined): SessionFigures 
     azimRange: rangeOf(s.upper_arm_azimuth_deg),
     dispMedian: disp ? n(disp.median) : null,
     dispP95: disp ? n(disp.p95) : null,
+    isbElevRange: rangeOf(obj(s.anatomical_rom_deg)?.shoulder_elevation_deg),
+    sparcMedian: n(obj(s.movement_quality_median)?.sparc),
+    straightnessMedian: n(obj(s.movement_quality_median)?.straightness_ratio),
+    unitsMedian: n(obj(s.movement_quality_median)?.movement_units),
   };
   return Object.values(f).some((v) => v !== null) ? f : null;
 }

@@ -112,6 +112,8 @@ export interface SessionSummary {
   upper_arm_elevation_deg?: Range | null;
   upper_arm_azimuth_deg?: Range | null;
   rejected_messages?: number | null;
+  anatomical_rom_deg?: Record<string, Range> | null;
+  movement_quality_median?: Partial<Record<QualityField, number | null>> | null;
   [key: string]: unknown;
 }
 
@@ -172,7 +174,51 @@ export interface Report {
   cycle_duration_s?: { median: number | null; min: number | null; max: number | null };
   data_quality?: Quality;
   params?: Partial<Params> & Record<string, unknown>;
+  anatomical_rom?: AnatomicalRom;
+  movement_quality?: MovementQuality;
+  key_figures?: KeyFigureOut[];
   [key: string]: unknown;
+}
+
+/** Shoulder angles (ISB) and elbow flexion per session and per cycle (backend/clinical.py). */
+export interface AnatomicalRom {
+  reference_frame: string;
+  note: string;
+  convention: string;
+  side: string;
+  session: Record<string, Range>;
+  cycles: { start: number; end: number; angles: Record<string, Range> }[];
+}
+
+export const QUALITY_FIELDS = [
+  "movement_time_s",
+  "path_length_m",
+  "straightness_ratio",
+  "mean_speed_m_s",
+  "peak_speed_m_s",
+  "movement_units",
+  "sparc",
+  "ldlj",
+] as const;
+export type QualityField = (typeof QUALITY_FIELDS)[number];
+
+export type QualityCycle = { start: number; end: number; compensatory: boolean | null; path_xy: [number, number][] } & Record<QualityField, number | null>;
+
+/** Movement quality of the wrist cuff's path per cycle, with the session's medians. */
+export interface MovementQuality {
+  source: string;
+  note: string;
+  params: Record<string, unknown>;
+  cycles: QualityCycle[];
+  session_median: Record<QualityField, number | null>;
+}
+
+export interface KeyFigureOut {
+  key: string;
+  label: string;
+  value: number | null;
+  unit: string;
+  detail?: string;
 }
 
 /** GET /api/sessions/{id}/report: the report with the session's and patient's metadata. */

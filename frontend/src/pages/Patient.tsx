@@ -5,7 +5,7 @@ import { Alert, KeyFigure } from "../components/bits";
 import { PatientForm } from "../components/PatientForm";
 import { StaticChart } from "../components/StaticChart";
 import { api, errorText } from "../lib/api";
-import { cm, dateTime, deg, duration, pct, shortDate, warningAfter } from "../lib/format";
+import { cm, dateTime, deg, duration, num, pct, shortDate, warningAfter } from "../lib/format";
 import { LINE, type ChartSpec } from "../lib/plots";
 import { figuresOf, type SessionFigures } from "../lib/summary";
 import type { Device, Patient, Session } from "../lib/types";
@@ -15,6 +15,75 @@ const STATUS_TEXT: Record<Session["status"], string> = {
   stopped: "Finished",
   interrupted: "⚠ Interrupted",
 };
+
+const COMPARE_ROWS: [string, keyof SessionFigures, (v: number | null | undefined) => string][] = [
+  ["Cycles", "cycles", (v) => (v == null ? "–" : String(v))],
+  ["Compensatory cycles", "compShare", (v) => pct(v)],
+  ["Shoulder displacement, median", "dispMedian", (v) => cm(v)],
+  ["Elbow flexion, active range", "elbowRange", (v) => deg(v)],
+  ["Shoulder elevation (ISB), active range", "isbElevRange", (v) => deg(v)],
+  ["Upper-arm elevation, range", "elevRange", (v) => deg(v)],
+  ["Smoothness (SPARC), median", "sparcMedian", (v) => num(v, 2)],
+  ["Straightness, median", "straightnessMedian", (v) => num(v, 2)],
+  ["Movement units, median", "unitsMedian", (v) => num(v, 0)],
+];
+
+/** Two finished sessions side by side (default: the last two). */
+function Compare({ sessions, figures }: { sessions: Session[]; figures: Map<number, SessionFigures> }) {
+  const done = sessions.filter((s) => figures.has(s.id));
+  const [a, setA] = useState<number | null>(null);
+  const [b, setB] = useState<number | null>(null);
+  if (done.length < 2) return <p class="empty">Comparing needs two finished sessions.</p>;
+  const left = done.find((s) => s.id === a) ?? done[1]!;
+  const right = done.find((s) => s.id === b) ?? done[0]!;
+  const pick = (value: number, set: (n: number) => void, label: string) => (
+    <label class="field field--inline">
+      <span>{label}</span>
+      <select value={value} onChange={(e) => set(Number(e.currentTarget.value))} data-compare={label}>
+        {done.map((s) => (
+          <option key={s.id} value={s.id}>
+            {dateTime(s.started_at)} · {s.device}
+          </option>
+        ))}
+      </select>
+    </label>
+  );
+  const fl = figures.get(left.id)!;
+  const fr = figures.get(right.id)!;
+  return (
+    <div>
+      <div class="session-bar__row">
+        {pick(left.id, setA, "Session A")}
+        {pick(right.id, setB, "Session B")}
+      </div>
+      <div class="table-wrap">
+        <table class="table" data-table="compare">
+          <caption class="sr-only">Two sessions side by side</caption>
+          <thead>
+            <tr>
+              <th scope="col">Figure</th>
+              <th scope="col">
+                A · <a href={`/sessions/${left.id}`}>{shortDate(left.started_at)}</a>
+              </th>
+              <th scope="col">
+                B · <a href={`/sessions/${right.id}`}>{shortDate(right.started_at)}</a>
+              </th>
+            </tr>
+          </thead>
+          <tbody>
+            {COMPARE_ROWS.map(([label, key, fmt]) => (
+              <tr key={key}>
+                <th scope="row">{label}</th>
+                <td>{fmt(fl[key])}</td>
+                <td>{fmt(fr[key])}</td>
+              </tr>
+            ))}
+          </tbody>
+        </table>
+      </div>
+    </div>
+  );
+}
 
 function Trends({ sessions, figures }: { sessions: Session[]; figures: Map<number, SessionFigures> }) {
   const done = sessions.filter((s) => figures.has(s.id)).reverse(); // oldest first
@@ -39,13 +108,17 @@ function Trends({ sessions, figures }: { sessions: Session[]; figures: Map<numbe
         { label: "Horizontal (azimuth) range", color: LINE.azim, points: true, dash: [6, 3] },
       ],
     };
-    return { share, elbow, shoulder };
+    const smooth: ChartSpec = { ...base, title: "Smoothness", yLabel: "SPARC", series: [{ label: "SPARC, session median", color: LINE.disp, points: true }] };
+    const isb: ChartSpec = { ...base, title: "Shoulder elevation (ISB)", yLabel: "degrees", yMin: 0, series: [{ label: "Shoulder elevation active range", color: LINE.elev, points: true }] };
+    return { share, elbow, shoulder, smooth, isb };
   }, [labels.join("|")]);
   const data = useMemo(
     () => ({
       share: [xs, col("compShare", 100)] as AlignedData,
       elbow: [xs, col("elbowRange")] as AlignedData,
       shoulder: [xs, col("elevRange"), col("azimRange")] as AlignedData,
+      smooth: [xs, col("sparcMedian")] as AlignedData,
+      isb: [xs, col("isbElevRange")] as AlignedData,
     }),
     [done.length, figures],
   );
@@ -57,6 +130,8 @@ function Trends({ sessions, figures }: { sessions: Session[]; figures: Map<numbe
       <StaticChart name="trend-compensatory" caption="Compensatory cycles (% of the cycles)" spec={specs.share} data={data.share} />
       <StaticChart name="trend-elbow" caption="Elbow range of motion (°)" spec={specs.elbow} data={data.elbow} />
       <StaticChart name="trend-shoulder" caption="Shoulder range of motion (°)" spec={specs.shoulder} data={data.shoulder} />
+      <StaticChart name="trend-isb" caption="Shoulder elevation, anatomical active range (°)" spec={specs.isb} data={data.isb} />
+      <StaticChart name="trend-sparc" caption="Smoothness, SPARC session median (closer to 0 is smoother)" spec={specs.smooth} data={data.smooth} />
     </div>
   );
 }
@@ -170,6 +245,11 @@ export function PatientPage({ id }: { id: number }) {
       <section class="card" aria-labelledby="trends-title">
         <h2 id="trends-title">Trends across sessions</h2>
         {sessions === null ? <p role="status">Loading…</p> : <Trends sessions={sessions} figures={figures} />}
+      </section>
+
+      <section class="card" aria-labelledby="compare-title">
+        <h2 id="compare-title">Compare two sessions</h2>
+        {sessions === null ? <p role="status">Loading…</p> : <Compare sessions={sessions} figures={figures} />}
       </section>
 
       <section class="card" aria-labelledby="sessions-title">

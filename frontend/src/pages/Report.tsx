@@ -2,6 +2,7 @@ import { useEffect, useMemo, useState } from "preact/hooks";
 import type { AlignedData } from "uplot";
 
 import { Alert, CycleCounts, CycleTable, KeyFigure } from "../components/bits";
+import { AnatomicalRomSection, MovementQualitySection } from "../components/Clinical";
 import { StaticChart } from "../components/StaticChart";
 import { api, ApiError, errorText, getText } from "../lib/api";
 import { parseDetails, parseEstimates, type DetailColumns, type EstimateColumns } from "../lib/csv";
@@ -156,6 +157,15 @@ export function ReportPage({ id }: { id: number }) {
             <a class="btn" href={`${base}/recording.jsonl.gz`} download={`session-${id}-recording.jsonl.gz`} data-export="recording">
               Raw recording
             </a>
+            <a class="btn" href={`${base}/report.pdf`} download={`session-${id}.pdf`} data-export="pdf">
+              Report (PDF)
+            </a>
+            <a class="btn" href={`${base}/fhir`} download={`session-${id}-fhir.json`} data-export="fhir">
+              FHIR R4 Bundle
+            </a>
+            <a class="btn" href={`${base}/recording.mcap`} download={`session-${id}.mcap`} data-export="mcap">
+              MCAP (Foxglove)
+            </a>
           </div>
         </div>
       </section>
@@ -218,6 +228,9 @@ export function ReportPage({ id }: { id: number }) {
           </div>
         </dl>
       </section>
+
+      {report?.anatomical_rom && <AnatomicalRomSection rom={report.anatomical_rom} t0={t0} />}
+      {report?.movement_quality && <MovementQualitySection quality={report.movement_quality} t0={t0} />}
 
       <section class="card" aria-labelledby="cycles-title">
         <div class="card__head">
