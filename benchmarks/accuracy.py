@@ -28,8 +28,7 @@ from simulator import SimConfig, simulate
 METHODS = {
     "improved": PipelineParams(),
     "improved, assumed l_A": PipelineParams(arm_length="fixed"),
-    "paper": PipelineParams(method="paper"),
-    "paper, assumed l_A (plain)": PipelineParams(method="paper", arm_length="fixed"),
+    "paper (as published)": PipelineParams(method="paper"),
 }
 
 

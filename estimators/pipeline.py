@@ -388,7 +388,7 @@ class Pipeline:
             return
         off = self.params.robot_time_offset_s
         wait = self.params.imu_wait_s
-        ahead = self.params.imu_predict_s
+        ahead = self.params.predict_s
         front = self._imu_frontier
         n = len(self._row_t)
         i = self._n_decided
@@ -694,7 +694,7 @@ class Pipeline:
         angle, disp, conv, elev, azim = rows.angles_scalar(
             x_now, x_c, p_e, sh, nom, p.displacement_norm
         )
-        if p.elbow_angle_timing != "fresh":
+        if p.angle_timing != "fresh":
             angle = self._angle(rows.SCALAR, x_now, x_a, x_c, prev, t - prev_t, latency)
         if not with_imu:
             self.quality.rows_without_imu += 1
@@ -796,7 +796,7 @@ class Pipeline:
         ``dt`` earlier) so both segments describe the same instant; ``fresh`` pairs them as
         they are; ``paired`` uses the upper arm at the robot's instant.
         """
-        mode = self.params.elbow_angle_timing
+        mode = self.params.angle_timing
         if mode == "paired":
             return rows.angle_deg(M, x_pair, x_c)
         if mode == "extrapolate":
@@ -807,7 +807,7 @@ class Pipeline:
         """Whether :meth:`_arm_length` returns ``_arm_len`` for every row of spec ``k`` from
         here on, whatever the row."""
         kind, _, point = self._specs[k]
-        if self.params.arm_length != "calibrate" or kind != "point" or point is None:
+        if self.params.arm_length_mode != "calibrate" or kind != "point" or point is None:
             self._arm_free.add(k)  # for good: a spec's kind and point never change
             return True
         return k == self._arm_spec_done
