@@ -66,6 +66,7 @@ class HeadingParams:
     converged_interval_s: float = 5.0  # improved: update cadence once converged (drift predicted)
     lag_every: int = 5  # improved: re-estimate the latency every this many updates
     max_lag_s: float = 0.15  # search range ± for that latency
+    block_s: float = 4.0  # improved: residual blocks of the heteroscedastic refit; 0: off
 
     @classmethod
     def paper(cls) -> HeadingParams:
@@ -611,10 +612,19 @@ def update_improved(
         cl = _rows(w.cl, v, all_valid)
         jac = _jacobian(cl if delay is None else _delay_apply(cl, *delay))
     # the sensor errors need cl not all zero (as np.any(cl); a nonzero first sample answers)
-    if jac is not None and (bool(jac[:3].any()) or bool(jac.any())):
-        d0, rate, sd = _fit_with_sensor_errors(state, a, b, tau, jac, rate0, params)
-    else:
-        d0, rate, sd, _ = fit_drift(a, b, tau, rate0, params)
+    if jac is None or not jac.any():
+        jac = None
+    d0, rate, sd = _fit(state, a, b, tau, jac, rate0, params)
+    if params.block_s > 0:
+        # Heteroscedastic refit: stretches the model does not explain (above all the 6D
+        # filter's levelling transient while its gyro-bias estimate settles, whose leak of
+        # gravity grows with the bias) count with the weight their own residual gives them,
+        # instead of inflating the uncertainty of the whole window until they leave it.
+        sw = _block_weights(d0, rate, tau, a, b, jac, state, params.block_s)
+        if sw is not None:
+            a, b = a * sw[:, None], b * sw[:, None]
+            jac = None if jac is None else jac * np.repeat(sw, 3)[:, None]
+            d0, rate, sd = _fit(state, a, b, tau, jac, rate0, params)
     d = wrap(d0 + rate * lag_s)
     prev = predict(state, t)
     state.n_counted += 1
@@ -632,6 +642,57 @@ def update_improved(
         ):
             state.converged, state.t_converged = True, t
     return True
+
+
+def _fit(
+    state: HeadingState,
+    a: Array,
+    b: Array,
+    tau: Array,
+    jac: Array | None,
+    rate0: float,
+    params: HeadingParams,
+) -> tuple[float, float, float]:
+    """The drift fit, with the sensor errors when ``jac`` is given: ``(δ0, ρ, std δ0)``."""
+    if jac is not None:
+        return _fit_with_sensor_errors(state, a, b, tau, jac, rate0, params)
+    d0, rate, sd, _ = fit_drift(a, b, tau, rate0, params)
+    return d0, rate, sd
+
+
+def _block_weights(
+    d0: float,
+    rate: float,
+    tau: Array,
+    a: Array,
+    b: Array,
+    jac: Array | None,
+    state: HeadingState,
+    block_s: float,
+) -> Array | None:
+    """Square roots of per-sample weights (n,) from the fit's horizontal residual in blocks of
+    ``block_s``: ``min(1, median / block's mean)`` of the blocks' mean squared residual, so a
+    block noisier than the typical one counts as its own noise warrants. None when every
+    weight is 1."""
+    r = _derotated_residual(d0, rate, tau, a, b)
+    if jac is not None:
+        x = np.concatenate((state.acc_bias, state.lever_error))
+        r -= (jac @ x).reshape(-1, 3)
+    e2 = r[:, 0] ** 2 + r[:, 1] ** 2
+    blk = ((tau - tau[0]) // block_s).astype(np.intp)
+    nb = int(blk[-1]) + 1
+    if nb < 3:
+        return None
+    count = np.bincount(blk, minlength=nb)
+    mean = np.bincount(blk, weights=e2, minlength=nb) / np.maximum(count, 1)
+    med = float(np.median(mean[count > 0]))
+    if not med > 0.0:
+        return None
+    w = np.minimum(1.0, med / np.maximum(mean, 1e-300))
+    if bool(np.all(w[count > 0] == 1.0)):
+        return None
+    out: Array = np.sqrt(w)[blk]
+    return out
 
 
 def predict(state: HeadingState, t: float) -> float | None:
