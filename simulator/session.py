@@ -144,8 +144,8 @@ def simulate(config: SimConfig | None = None, *, progress: bool = False) -> Simu
     rng_subject, rng_traj, rng_imu, rng_robot = (np.random.default_rng(s) for s in seeds)
     drawn = cfg.subject if cfg.subject is not None else draw_subject(rng_subject)
     if cfg.gyro_bias_scale != 1.0:
-        bias = tuple(cfg.gyro_bias_scale * b for b in drawn.gyro_bias_dps)
-        drawn = replace(drawn, gyro_bias_dps=bias)
+        bx, by, bz = (cfg.gyro_bias_scale * b for b in drawn.gyro_bias_dps)
+        drawn = replace(drawn, gyro_bias_dps=(bx, by, bz))
     subject = without(drawn, **cfg.switches())
     spans = cfg.spans()
     duration = cfg.duration_s
