@@ -11,11 +11,6 @@ from numpy.typing import NDArray
 from scipy import sparse
 from vqf import VQF
 
-try:  # the compiled loop behind a CSR matrix's product with a dense matrix
-    from scipy.sparse._sparsetools import csr_matvecs
-except ImportError:  # pragma: no cover - a scipy that moved it: the public product
-    csr_matvecs = None
-
 from estimators import kinematics as kin
 from estimators import quaternion as quat
 from estimators import rows
@@ -369,18 +364,10 @@ class ImuStage:
         x = self.channels(s0 + base, s0 + int(lo.max()) + m)
         # the weighted sums as a sparse product: the same sequential sums as gathering
         # (ng, m, 15) windows and reducing them, without that array (26 MB for 8 minutes)
-        if csr_matvecs is None:
-            kernel = sparse.csr_matrix(
-                (w.ravel(), (idx - base).ravel(), np.arange(0, ng * m + 1, m)), shape=(ng, len(x))
-            )
-            acc = np.asarray(kernel @ x)
-        else:
-            # what that product runs (csr_matrix.__matmul__ → _matmul_multivector) without
-            # the constructor's checks and the operator's dispatch, which cost more here
-            acc = np.zeros((ng, 15))
-            np.subtract(idx, base, out=idx)
-            indptr = np.arange(0, ng * m + 1, m)
-            csr_matvecs(ng, len(x), 15, indptr, idx.ravel(), w.ravel(), x.ravel(), acc.ravel())
+        kernel = sparse.csr_matrix(
+            (w.ravel(), (idx - base).ravel(), np.arange(0, ng * m + 1, m)), shape=(ng, len(x))
+        )
+        acc = np.asarray(kernel @ x)
         with np.errstate(invalid="ignore", divide="ignore"):
             np.divide(acc, wsum[:, None], out=acc)
         return ok, acc
