@@ -414,44 +414,11 @@ class ImuStage:
         w = np.clip((s - t[i0]) / (t[i1c] - t[i0]), 0.0, 1.0)
         return ok, i0, i1c, w
 
-    def interp(self, s: Array, asof: Array) -> tuple[Idx, tuple[Array, ...], Array]:
-        """Orientation q_IA (w, x, y, z columns) at times ``s`` (nlerp, :func:`rows.nlerp`);
-        ``ok`` where both neighbours exist in one segment; also the segment ids. Where
-        ``s > asof`` (the IMU had only reached ``asof`` when the row was decided), predicted
-        from the newest sample at or before ``asof`` (:func:`rows.predict`).
-        Bit-identical to :meth:`at` for each time."""
-        if len(self.tl) < 2:
-            nan = np.full(len(s), np.nan)
-            return np.zeros(len(s), bool), (nan, nan, nan, nan), np.zeros(len(s))
-        ok, i0, i1, w = self._bracket(s)
-        q = self.buf.cols(self.Q, self.Q + 4)
-        q0 = tuple(q[i0, j] for j in range(4))
-        q1 = tuple(q[i1, j] for j in range(4))
-        qs, seg = rows.nlerp(rows.VECTOR, q0, q1, w), self.segid[i1]
-        ahead = np.flatnonzero(s > asof)
-        if len(ahead):
-            t = np.ascontiguousarray(self.t)
-            j = np.searchsorted(t, asof[ahead], side="right") - 1
-            jc = np.maximum(j, 0)
-            wa = self.buf.cols(self.W, self.DW + 3)
-            qp = rows.predict(
-                rows.VECTOR,
-                tuple(q[jc, c] for c in range(4)),
-                tuple(wa[jc, c] for c in range(3)),
-                tuple(wa[jc, 3 + c] for c in range(3)),
-                s[ahead] - t[jc],
-            )
-            qs = tuple(a.copy() for a in qs)
-            for a, b in zip(qs, qp, strict=True):
-                a[ahead] = b
-            ok = ok.copy()
-            ok[ahead] = j >= 0
-            seg = seg.copy()
-            seg[ahead] = self.segid[jc]
-        return ok, qs, seg
-
     def at(self, s: float, asof: float) -> tuple[bool, tuple[float, ...], float]:
-        """:meth:`interp` for one time, with Python floats (a single row costs ~20× less)."""
+        """Orientation q_IA (w, x, y, z) at time ``s`` (nlerp, :func:`rows.nlerp`), whether
+        both neighbours exist in one segment, and the segment id. Where ``s > asof`` (the IMU
+        had only reached ``asof`` when the row was decided), predicted from the newest sample
+        at or before ``asof`` (:func:`rows.predict`)."""
         tl = self.tl
         n = len(tl)
         if n < 2:
@@ -461,7 +428,7 @@ class ImuStage:
             j = n - 1 if asof >= tl[-1] else bisect.bisect_right(tl, asof) - 1
             jc = j if j > 0 else 0
             q, w, dw, seg = self._sample(jc)
-            return j >= 0, rows.predict_scalar(q, w, dw, s - tl[jc]), seg
+            return j >= 0, rows.predict(q, w, dw, s - tl[jc]), seg
         i1 = bisect.bisect_left(tl, s)
         i1c = min(max(i1, 1), n - 1)
         i0 = i1c - 1
@@ -475,7 +442,7 @@ class ImuStage:
         t0 = tl[i0]
         a = (s - t0) / (tl[i1c] - t0)
         a = 0.0 if a < 0.0 else 1.0 if a > 1.0 else a  # as np.clip (NaN passes)
-        return 0 < i1 < n and seg0 == seg1, rows.nlerp_scalar(q0, q1, a), seg1
+        return 0 < i1 < n and seg0 == seg1, rows.nlerp(q0, q1, a), seg1
 
     def interp_channels(self, s: Array) -> tuple[Idx, Array]:
         """Fusion channels linearly interpolated at ``s`` (no anti-alias: the paper's way)."""

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import bisect
 import math
-import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, TypeAlias
@@ -40,9 +39,8 @@ from numpy.typing import NDArray
 
 from estimators import heading as hd
 from estimators import rows
-from estimators.boundary import Boundary
 from estimators.buffers import RowQueue
-from estimators.compensation import ONE_CODE, CompensationParams, EpisodeTracker, Indicator
+from estimators.compensation import CompensationParams, EpisodeTracker, Indicator
 from estimators.cycles import CycleParams, CycleSegmenter
 from estimators.grid_stage import GridStage
 from estimators.imu_stage import ImuStage
@@ -109,14 +107,6 @@ class _Stream:
         return True
 
 
-def _run_end(values: Sequence[int], i: int) -> int:
-    """End of the run of equal values starting at ``i``."""
-    v, j, n = values[i], i + 1, len(values)
-    while j < n and values[j] == v:
-        j += 1
-    return j
-
-
 # ------------------------------------------------------------------------------ pipeline
 
 
@@ -134,8 +124,8 @@ class Pipeline:
         self._grid = GridStage(p)
         # messages fed since the last poll
         self._imu_pending: list[tuple[Array, Array, Array, list[float] | None]] = []
-        # (t, wrist, proximal, elbow, the first three as float lists if at hand)
-        self._robot_pending: list[tuple[Array, Array, Array, Array | None, Any]] = []
+        # (t, wrist, proximal, elbow)
+        self._robot_pending: list[tuple[Array, Array, Array, Array | None]] = []
         # consecutive rows fed by feed_*_rows, not yet cut out as one pending piece:
         # [t, gyr, acc, i0, i1] and [t, wrist, proximal, elbow, i0, i1]
         self._imu_run: list[Any] | None = None
@@ -313,7 +303,7 @@ class Pipeline:
                 return False
         if self._robot_run is not None:
             self._close_robot_run()
-        self._robot_pending.append((t, wrist, proximal, elbow, (tl, wl, pl)))
+        self._robot_pending.append((t, wrist, proximal, elbow))
         self._accept_robot(tl)
         return True
 
@@ -364,7 +354,7 @@ class Pipeline:
         if run is not None:
             t, wrist, prox, elbow, i0, i1 = run
             e = None if elbow is None else elbow[i0:i1]
-            self._robot_pending.append((t[i0:i1], wrist[i0:i1], prox[i0:i1], e, None))
+            self._robot_pending.append((t[i0:i1], wrist[i0:i1], prox[i0:i1], e))
             self._robot_run = None
 
     def feed_event(self, t: float, etype: str, point: Array | None = None) -> bool:
@@ -476,7 +466,7 @@ class Pipeline:
         if self._robot_pending:
             pend_r, self._robot_pending = self._robot_pending, []
             if len(pend_r) == 1:
-                self._robot_samples(*pend_r[0][:4], off, pend_r[0][4])
+                self._robot_samples(*pend_r[0], off)
             else:  # one vectorised call (elementwise: the same numbers as one by one)
                 given = [c[3] for c in pend_r]
                 elbow = None
@@ -572,101 +562,53 @@ class Pipeline:
         self._snap_t.extend(s[0] for s in snaps)
 
     def _robot_samples(
-        self,
-        t: Array,
-        wrist: Array,
-        prox: Array,
-        elbow: Array | None,
-        off: float,
-        lists: tuple[list[float], list[list[float]], list[list[float]]] | None = None,
+        self, t: Array, wrist: Array, prox: Array, elbow: Array | None, off: float
     ) -> None:
         """Elbow and forearm axis from the cuffs (eq. 13), or the robot's own elbow."""
-        n = len(t)
         lp = self.params.cuff_to_elbow_m
-        if n <= _SMALL:
-            tl, wl, pl = lists or (t.tolist(), wrist.tolist(), prox.tolist())
-            el = None if elbow is None else elbow.tolist()
-            pes: list[tuple[float, ...]] = []
-            for j, (w, p) in enumerate(zip(wl, pl, strict=True)):
-                xc = rows.unit_scalar(w[0] - p[0], w[1] - p[1], w[2] - p[2])
-                pe = (p[0] - lp * xc[0], p[1] - lp * xc[1], p[2] - lp * xc[2])
-                if el is not None:
-                    pe = tuple(e if math.isfinite(e) else v for e, v in zip(el[j], pe, strict=True))
-                self._rowq.push((*w, *pe, *xc))
-                pes.append(pe)
-            self._robot.append([x - off for x in tl] if off else tl, pes, self.quality)
-            return
-        M = rows.VECTOR
-        xc_v = rows.unit(M, tuple(wrist[:, i] - prox[:, i] for i in range(3)))
-        pe_v = tuple(prox[:, i] - lp * xc_v[i] for i in range(3))
-        if elbow is not None:
-            pe_v = tuple(np.where(np.isfinite(elbow[:, i]), elbow[:, i], pe_v[i]) for i in range(3))
-        block = np.column_stack((wrist, *pe_v, *xc_v))
-        self._rowq.append(block)
-        self._robot.append((t - off).tolist(), block[:, 3:6], self.quality)
+        tl, wl, pl = t.tolist(), wrist.tolist(), prox.tolist()
+        el = None if elbow is None else elbow.tolist()
+        pes: list[tuple[float, ...]] = []
+        for j, (w, p) in enumerate(zip(wl, pl, strict=True)):
+            xc = rows.unit(w[0] - p[0], w[1] - p[1], w[2] - p[2])
+            pe = (p[0] - lp * xc[0], p[1] - lp * xc[1], p[2] - lp * xc[2])
+            if el is not None:
+                pe = tuple(e if math.isfinite(e) else v for e, v in zip(el[j], pe, strict=True))
+            self._rowq.push((*w, *pe, *xc))
+            pes.append(pe)
+        self._robot.append([x - off for x in tl] if off else tl, pes, self.quality)
 
     def _rows(self) -> Output:
-        """Rows of the robot samples decided since the last poll (eqs. 9–12, §3.4).
-
-        One row at a time in Python floats when few are due (the live case), as arrays
-        otherwise; :mod:`estimators.rows` makes both bit-identical."""
+        """Rows of the robot samples decided since the last poll (eqs. 9–12, §3.4), one at a
+        time: live polls bring one row, an analysis brings them all, through the same code."""
         lo, hi = self._n_done, self._n_decided
         if hi <= lo:
             return Output()
         self._n_done = hi
         n = hi - lo
-        if n == 1:
-            return self._one_row(lo)
-        t = self._row_t[lo:hi]
-        dec = self._decisions[lo:hi]
-        # compensation rule (§3.4); segment first: a completed cycle sets the tolerated
-        # duration from its end on
-        boundaries: list[Boundary]
-        tt: Any
-        disp: Any
-        if n <= _SMALL:
-            flat: list[float] = []
-            boundaries, disp = [], []
-            seg = self._segmenter
-            for tj, dj, rj in zip(t, dec, self._rowq.take_rows(n), strict=True):
-                row = self._row(tj, dj, rj)
-                flat.extend(row)
-                disp.append(row[_DISP])
-                boundaries.extend(seg.push(tj, rj[0], rj[1]))
-            tt = t
-            m = np.fromiter(flat, np.float64, len(flat)).reshape(n, NCOL)
-        else:
-            block = self._rowq.take_block(n)
-            with np.errstate(invalid="ignore", divide="ignore"):  # NaN where no estimate
-                m = self._rows_vector(np.array(t), dec, block)
-            tt, disp = m[:, 0], m[:, _DISP]
-            boundaries = self._segmenter.update(tt, block[:, 0:3])
-        codes, changes = self._indicator.update(tt, disp, None, boundaries)
-        verdicts = self._judge.update(tt, codes, boundaries, disp)
-        episodes = self._episodes.update(tt, codes, disp)
-        return Output(RowTable(m, codes), _feedback(changes, verdicts), verdicts, episodes)
-
-    def _one_row(self, i: int) -> Output:
-        """:meth:`_rows` of the one row ``i`` (the live case): each stage's single-sample
-        entry, floats only up to the row's matrix."""
-        t = self._row_t[i]
-        r = self._rowq.take_row()
-        row = self._row(t, self._decisions[i], r)
-        d = row[_DISP]
-        boundaries = self._segmenter.push(t, r[0], r[1])
+        flat: list[float] = []
+        codes: list[int] = []
         changes: list[tuple[float, str]] = []
-        code = self._indicator.push(t, d, boundaries, changes)
-        verdicts = self._judge.push(t, code, d, boundaries)
-        episodes = self._episodes.push(t, code, d)
-        # packed in one call and read in place (about half np.fromiter's cost); bytes, unlike
-        # an array.array's buffer, are not tracked by the cyclic collector while rows live
-        m = np.frombuffer(_PACK_ROW(*row), _ROW_DTYPE)  # (1, NCOL), read-only as the table
-        return Output(
-            RowTable(m, ONE_CODE[code]),  # shared: read-only, as the table is
-            _feedback(changes, verdicts) if changes or verdicts else [],
-            verdicts,
-            episodes,
-        )
+        verdicts: list[CycleVerdict] = []
+        episodes: list[Any] = []
+        seg, ind, judge, eps = self._segmenter, self._indicator, self._judge, self._episodes
+        for t, dec, r in zip(
+            self._row_t[lo:hi], self._decisions[lo:hi], self._rowq.take_rows(n), strict=True
+        ):
+            row = self._row(t, dec, r)
+            flat += row
+            d = row[_DISP]
+            # compensation rule (§3.4); segment first: a completed cycle sets the tolerated
+            # duration from its end on
+            boundaries = seg.push(t, r[0], r[1])
+            code = ind.push(t, d, boundaries, changes)
+            codes.append(code)
+            verdicts += judge.push(t, code, d, boundaries)
+            episodes += eps.push(t, code, d)
+        m = np.fromiter(flat, np.float64, len(flat)).reshape(n, NCOL)
+        table = RowTable(m, np.array(codes, dtype=np.int8))
+        fb = _feedback(changes, verdicts) if changes or verdicts else []
+        return Output(table, fb, verdicts, episodes)
 
     def _row(self, t: float, dec: tuple[bool, int, float], r: Sequence[float]) -> list[float]:
         """One row in Python floats, in :data:`estimators.output.LAYOUT` order (state filled in
@@ -682,7 +624,7 @@ class Pipeline:
         ok_p, q_p, seg_p = self._imu.at(s - latency, asof)
         ok_n, q_n, seg_n = self._imu.at(s, asof)
         ok = ok_p and with_imu and ok_n and seg_n == seg_p
-        (_, h_std, h_conf, h_offset, h_good), q_ra, x_now, x_a = rows.heading_arm_scalar(
+        (_, h_std, h_conf, h_offset, h_good), q_ra, x_now, x_a = rows.heading_arm(
             s, ok, snap, seg_p, q_n, q_p
         )
         wrist, p_e, x_c = r[0:3], r[3:6], r[6:9]
@@ -691,11 +633,9 @@ class Pipeline:
         la = self._arm_len if k in self._arm_free else self._arm_length(t, p_e, k)
         sh = rows.shoulder(p_e, x_a, la)
         nom = self._nominal_at(t, sh, h_good, k)
-        angle, disp, conv, elev, azim = rows.angles_scalar(
-            x_now, x_c, p_e, sh, nom, p.displacement_norm
-        )
+        angle, disp, conv, elev, azim = rows.angles(x_now, x_c, p_e, sh, nom, p.displacement_norm)
         if p.angle_timing != "fresh":
-            angle = self._angle(rows.SCALAR, x_now, x_a, x_c, prev, t - prev_t, latency)
+            angle = self._angle(x_now, x_a, x_c, prev, t - prev_t, latency)
         if not with_imu:
             self.quality.rows_without_imu += 1
         good = 1.0 if h_good else 0.0
@@ -704,91 +644,15 @@ class Pipeline:
             h_conf, elev, azim, *nom, conv, *wrist, la,
         ]  # fmt: skip
 
-    def _rows_vector(self, t: Array, dec: list[tuple[bool, int, float]], block: Array) -> Array:
-        """:meth:`_row` for many rows at once, as arrays: (n, ``NCOL``)."""
-        M = rows.VECTOR
-        p = self.params
-        n = len(t)
-        s = t - p.robot_time_offset_s
-        imu_l, spec_t, asof_l = zip(*dec, strict=True)
-        with_imu = np.array(imu_l, dtype=bool)
-        spec = list(spec_t)
-        asof = np.array(asof_l)
-        if self._snaps:
-            si = (
-                np.searchsorted(
-                    np.array(self._snap_t), np.minimum(s, asof) - self._snap_lag, side="right"
-                )
-                - 1
-            )
-            sn = np.array(self._snaps)[np.maximum(si, 0)]
-            sn[si < 0] = np.nan
-        else:
-            sn = np.full((n, 8), np.nan)
-        snap = tuple(sn[:, j] for j in range(8))
-        latency = np.where(np.isfinite(sn[:, 7]), np.maximum(sn[:, 7], 0.0), 0.0)
-        ok_p, q_p, seg_p = self._imu.interp(s - latency, asof)
-        ok_n, q_n, seg_n = self._imu.interp(s, asof)
-        ok = ok_p & with_imu & ok_n & (seg_n == seg_p)
-        h = rows.heading(M, s, ok, snap, seg_p)
-        q_ra, x_now, x_a = rows.upper_arm(M, h.delta, h.good, q_n, q_p)
-        wrist = block[:, 0:3]
-        p_e = tuple(block[:, 3 + i] for i in range(3))
-        x_c = tuple(block[:, 6 + i] for i in range(3))
-        prev_t = np.concatenate(([self._xc_prev_t], t[:-1]))
-        prev = tuple(np.concatenate(([self._xc_prev[i]], x_c[i][:-1])) for i in range(3))
-        self._xc_prev_t, self._xc_prev = float(t[-1]), tuple(float(c[-1]) for c in x_c)
-        angle = self._angle(M, x_now, x_a, x_c, prev, t - prev_t, latency)
-        tl = t.tolist()
-        pe_rows = block[:, 3:6].tolist()
-        # per row as in _row, but a run of rows whose value can no longer change is filled
-        # at once (an analysis has ~10^4 rows and one or two nominal specs)
-        la = np.empty(n)
-        i = 0
-        while i < n:
-            k = spec[i]
-            if self._arm_length_fixed(k):
-                j = _run_end(spec, i)
-                la[i:j] = self._arm_len
-                i = j
-            else:
-                la[i] = self._arm_length(tl[i], pe_rows[i], k)
-                i += 1
-        sh = rows.shoulder(p_e, x_a, la)
-        sh_rows = np.column_stack(sh).tolist()
-        good = h.good.tolist()
-        nom_a = np.empty((n, 3))
-        i = 0
-        while i < n:
-            k = spec[i]
-            nom_a[i] = self._nominal_at(tl[i], tuple(sh_rows[i]), good[i], k)
-            i += 1
-            if self._nom_point is not None:  # set for the rest of this spec's rows
-                j = _run_end(spec, i - 1)
-                nom_a[i:j] = self._nom_point
-                i = j
-        nom = tuple(nom_a[:, i] for i in range(3))
-        disp = rows.displacement(M, sh, nom, p.displacement_norm)
-        conv = rows.conventional_angle(M, p_e, nom, x_c)
-        elev, azim = rows.elevation_azimuth(M, x_now)
-        self.quality.rows_without_imu += int(np.count_nonzero(~with_imu))
-        return np.column_stack(
-            (
-                t, *p_e, *sh, angle, h.offset_deg, h.good, disp, np.full(n, np.nan), *q_ra,
-                h.std_deg, h.confidence, elev, azim, *nom, conv, wrist, la,
-            )
-        )  # fmt: skip
-
     def _angle(
         self,
-        M: Any,
-        x_now: Sequence[Any],
-        x_pair: Sequence[Any],
-        x_c: Sequence[Any],
-        prev: Sequence[Any],
-        dt: Any,
-        latency: Any,
-    ) -> Any:
+        x_now: Sequence[float],
+        x_pair: Sequence[float],
+        x_c: Sequence[float],
+        prev: Sequence[float],
+        dt: float,
+        latency: float,
+    ) -> float:
         """Elbow angle (eq. 11) at the row's time.
 
         The robot's forearm axis is ``latency`` old while the IMU's upper-arm axis is fresh;
@@ -798,10 +662,10 @@ class Pipeline:
         """
         mode = self.params.angle_timing
         if mode == "paired":
-            return rows.angle_deg(M, x_pair, x_c)
+            return rows.angle_deg(x_pair, x_c)
         if mode == "extrapolate":
-            x_c = rows.extrapolate(M, x_c, prev, dt, latency)
-        return rows.angle_deg(M, x_now, x_c)
+            x_c = rows.extrapolate(x_c, prev, dt, latency)
+        return rows.angle_deg(x_now, x_c)
 
     def _arm_length_fixed(self, k: int) -> bool:
         """Whether :meth:`_arm_length` returns ``_arm_len`` for every row of spec ``k`` from
@@ -932,11 +796,7 @@ def _kind_of(msg: Any) -> str:
 
 
 _COINCIDENT_M2 = 1e-12  # squared cuff distance, m², below which the cuffs coincide
-_SMALL = 16  # up to this many rows or samples per call take the Python-float path
 _TRIM_EVERY_S = 2.0  # s of robot data between two trims (1 s: +2 % CPU; 5 s: +10 % memory)
 NAN3 = (math.nan,) * 3
 NAN8 = (math.nan,) * 8
 _DISP = COL["shoulder_displacement_m"]
-_PACK_ROW = struct.Struct(f"{NCOL}d").pack  # one row's floats as the matrix's bytes
-# a buffer of one row read as (1, NCOL) float64 (a sub-array dtype, typed as its base)
-_ROW_DTYPE: np.dtype[np.float64] = np.dtype((np.float64, (NCOL,)))  # type: ignore[assignment]
