@@ -700,9 +700,3 @@ def predict(state: HeadingState, t: float) -> float | None:
     if state.delta is None:
         return None
     return state.delta + state.rate * (t - state.t_update)
-
-
-def predict_std(state: HeadingState, t: float, params: HeadingParams) -> float:
-    """Uncertainty (rad) at ``t``: the update's, grown by an unmodelled drift of 0.1 °/s."""
-    dt = max(0.0, t - state.t_update)
-    return math.hypot(state.std, math.radians(0.1) * dt)

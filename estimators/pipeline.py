@@ -31,7 +31,6 @@ from __future__ import annotations
 import bisect
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any, TypeAlias
 
 import numpy as np
@@ -53,33 +52,7 @@ Array: TypeAlias = NDArray[np.float64]
 Idx: TypeAlias = NDArray[Any]  # integer and boolean arrays
 
 
-# ------------------------------------------------------------------------------ inputs
-# The pipeline accepts any objects with these attributes (backend.wire's messages do).
-
-
-@dataclass(frozen=True, slots=True)
-class ImuSamples:
-    t: Array
-    gyr: Array
-    acc: Array
-    seq: int | None = None
-    segment: str = "upperarm"
-
-
-@dataclass(frozen=True, slots=True)
-class RobotSamples:
-    t: Array
-    wrist: Array
-    proximal: Array
-    elbow: Array | None = None
-    seq: int | None = None
-
-
-@dataclass(frozen=True, slots=True)
-class Event:
-    t: float
-    type: str
-    point: Array | None = None
+# The pipeline takes any message objects with backend.wire's attributes (duck-typed).
 
 
 class _Stream:
