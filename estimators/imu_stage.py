@@ -90,6 +90,7 @@ class ImuStage:
         self._mw: list[float] = []
         self._mseg: list[float] = []
         self._mprev: tuple[float, tuple[float, ...], float] | None = None
+        self._rows_list: list[list[float]] | None = None  # the buffer as floats, when asked
 
     @property
     def t(self) -> Array:
@@ -237,6 +238,7 @@ class ImuStage:
             return
         n = len(self.tl) - len(self.buf)
         rows = self.buf.grow(n)
+        self._rows_list = None
         rows[:, self.T] = self.tl[len(self.tl) - n :]
         seg = self._p_seg
         if seg.count(seg[0]) == len(seg):  # one segment: no per-piece repeat
@@ -279,6 +281,7 @@ class ImuStage:
             if i > len(self.buf):
                 self._flush()
             self.buf.drop(i)
+            self._rows_list = None
             extra = len(self._mseg) - (len(self.tl) - i)
             if extra > 0:  # the mirror loses its oldest: the last of them is _mprev now
                 j = extra - 1
@@ -301,8 +304,12 @@ class ImuStage:
                 self._dw(k),
                 self._mseg[k],
             )
-        self._flush()
-        r: list[float] = self.buf.a[self.buf.lo + i].tolist()
+        rows = self._rows_list
+        if rows is None or i >= len(rows):
+            # many look-ups behind the mirror (an analysis's rows): the buffer as floats once
+            self._flush()
+            rows = self._rows_list = self.buf.view()[:, : self.WIDTH].tolist()
+        r = rows[i]
         return r[2:6], r[16:19], r[19:22], r[1]
 
     def _dw(self, k: int) -> list[float]:
