@@ -43,6 +43,7 @@ from estimators.compensation import CompensationParams, EpisodeTracker, Indicato
 from estimators.cycles import CycleParams, CycleSegmenter
 from estimators.grid_stage import GridStage
 from estimators.imu_stage import ImuStage
+from estimators.nominal import NominalStage
 from estimators.output import COL, NCOL, Output, Quality, RowTable
 from estimators.params import PipelineParams
 from estimators.robot_stage import RobotStage
@@ -125,25 +126,7 @@ class Pipeline:
         self._snap_t: list[float] = []
         self.convergence_time: float | None = None
         self.first_motion_time: float | None = None
-        # nominal shoulder: specs in feed order: ("point", t, xyz) or ("auto", t, None)
-        self._specs: list[tuple[str, float, Array | None]] = []
-        if p.nominal_shoulder_m is not None:
-            self._specs.append(
-                ("param", -math.inf, np.array(p.nominal_shoulder_m, dtype=np.float64))
-            )
-        else:
-            self._specs.append(("auto", -math.inf, None))
-        self._nom_spec = -1
-        self._nom_point: tuple[float, ...] | None = None
-        self._nom_acc: list[tuple[float, ...]] = []
-        self._nom_t0: float | None = None
-        self._ref_point: Array | None = None  # the last rope-measured point (for l_A)
-        self._arm_len = p.upper_arm_length_m
-        self._arm_spec = -1
-        self._arm_spec_done = -1
-        self._arm_pts: list[Array] = []
-        self._arm_free: set[int] = set()  # specs whose rows all use _arm_len as it is
-        self.arm_length_estimate: float | None = None
+        self._nominal = NominalStage(p, self.quality)
         # compensation
         self._cp = CompensationParams(
             tolerance_m=p.tolerance_m,
@@ -332,9 +315,9 @@ class Pipeline:
 
     def feed_event(self, t: float, etype: str, point: Array | None = None) -> bool:
         if etype == "shoulder_reference" and point is not None:
-            self._specs.append(("point", t, np.asarray(point, dtype=np.float64)))
+            self._nominal.add_reference(t, point)
         elif etype == "nominal_reset":
-            self._specs.append(("auto", t, None))
+            self._nominal.add_reset(t)
         elif etype == "cycle_start":
             self._segmenter.add_event(t)
         else:
@@ -355,7 +338,7 @@ class Pipeline:
         front = self._imu_frontier
         n = len(self._row_t)
         i = self._n_decided
-        spec = len(self._specs) - 1
+        nominal = self._nominal
         while i < n:
             tr = self._row_t[i]
             asof = math.inf
@@ -364,13 +347,14 @@ class Pipeline:
                 with_imu, asof = True, front
             elif not with_imu and self._robot_frontier < tr + wait:
                 break
-            # the latest nominal spec (in feed order) whose time has come
-            k = spec
-            while k > 0 and self._specs[k][1] > tr:
-                k -= 1
-            self._decisions.append((with_imu, k, asof))
+            self._decisions.append((with_imu, nominal.spec_for(tr), asof))
             i += 1
         self._n_decided = i
+
+    @property
+    def arm_length_estimate(self) -> float | None:
+        """The upper-arm length measured at the rope reference (m), None if none was."""
+        return self._nominal.arm_length_estimate
 
     @property
     def rows_ready(self) -> bool:
@@ -410,8 +394,8 @@ class Pipeline:
             "robot_latency_s": s.lag,
             "acc_bias_m_s2": s.acc_bias.tolist(),
             "lever_error_m": s.lever_error.tolist(),
-            "upper_arm_length_m": self._arm_len,
-            "upper_arm_length_measured": self.arm_length_estimate is not None,
+            "upper_arm_length_m": self._nominal.arm_len,
+            "upper_arm_length_measured": self._nominal.arm_length_estimate is not None,
             "quality": self.quality.as_dict(),
         }
 
@@ -603,9 +587,9 @@ class Pipeline:
         wrist, p_e, x_c = r[0:3], r[3:6], r[6:9]
         prev_t, prev = self._xc_prev_t, self._xc_prev
         self._xc_prev_t, self._xc_prev = t, x_c
-        la = self._arm_len if k in self._arm_free else self._arm_length(t, p_e, k)
+        la = self._nominal.arm_length(t, p_e, k)
         sh = rows.shoulder(p_e, x_a, la)
-        nom = self._nominal_at(t, sh, h_good, k)
+        nom = self._nominal.nominal_at(t, sh, h_good, k)
         angle, disp, conv, elev, azim = rows.angles(x_now, x_c, p_e, sh, nom, p.displacement_norm)
         if p.angle_timing != "fresh":
             angle = self._angle(x_now, x_a, x_c, prev, t - prev_t, latency)
@@ -639,71 +623,6 @@ class Pipeline:
         if mode == "extrapolate":
             x_c = rows.extrapolate(x_c, prev, dt, latency)
         return rows.angle_deg(x_now, x_c)
-
-    def _arm_length_fixed(self, k: int) -> bool:
-        """Whether :meth:`_arm_length` returns ``_arm_len`` for every row of spec ``k`` from
-        here on, whatever the row."""
-        kind, _, point = self._specs[k]
-        if self.params.arm_length_mode != "calibrate" or kind != "point" or point is None:
-            self._arm_free.add(k)  # for good: a spec's kind and point never change
-            return True
-        return k == self._arm_spec_done
-
-    def _arm_length(self, t: float, p_e: Sequence[float], k: int) -> float:
-        """Upper-arm length at a row: the parameter, or measured at the rope reference.
-
-        While the therapist holds the rope end on the shoulder (``shoulder_reference``), the
-        shoulder is at ``p_ref`` and the robot measures the elbow, so ``l_A = |p_E − p_ref|``
-        (mean elbow over ``arm_reference_s`` after the event). This removes the constant
-        offset an assumed length leaves in every shoulder estimate (eq. 12), without
-        needing the heading. Out-of-bounds or moving-arm measurements are ignored.
-        """
-        if self._arm_length_fixed(k):
-            return self._arm_len
-        p = self.params
-        _, t_e, point = self._specs[k]
-        if self._arm_spec != k:
-            self._arm_spec, self._arm_pts = k, []
-        if t <= t_e + p.arm_reference_s:
-            self._arm_pts.append(np.array(p_e))
-            return self._arm_len
-        self._arm_spec_done = k
-        # its later rows take _arm_len as it is now: later specs' rows come after them all
-        # (a row's spec is the newest whose time has come), so a new measurement misses them
-        self._arm_free.add(k)
-        pts = np.array(self._arm_pts)
-        self._arm_pts = []
-        if len(pts) >= 3 and float(np.max(np.std(pts, axis=0))) < 0.01:
-            length = float(np.linalg.norm(pts.mean(axis=0) - point))
-            lo_b, hi_b = p.arm_length_bounds_m
-            if lo_b <= length <= hi_b:
-                self._arm_len = length
-                self.arm_length_estimate = length
-                return length
-        self.quality.reject("arm_reference_unusable")
-        return self._arm_len
-
-    def _nominal_at(
-        self, t: float, shoulder: tuple[float, ...], good: bool, k: int
-    ) -> tuple[float, ...]:
-        """Nominal shoulder at a row (contract §4): parameter, rope reference, or automatic
-        (mean estimate over ``auto_nominal_s`` after convergence / after a reset event)."""
-        if k != self._nom_spec:
-            self._nom_spec = k
-            kind, _, point = self._specs[k]
-            self._nom_point = None if point is None else tuple(point.tolist())
-            self._nom_acc, self._nom_t0 = [], None
-            if point is not None and kind == "point":
-                self._ref_point = point
-        if self._nom_point is None and good:
-            if self._nom_t0 is None:
-                self._nom_t0 = t
-            self._nom_acc.append(shoulder)
-            if t - self._nom_t0 >= self.params.auto_nominal_s:
-                m = len(self._nom_acc)
-                self._nom_point = tuple(math.fsum(c) / m for c in zip(*self._nom_acc, strict=True))
-                self._nom_acc = []
-        return NAN3 if self._nom_point is None else self._nom_point
 
     def _trim(self) -> None:
         # keep what the next rows, grid points and heading windows can still need
@@ -770,6 +689,5 @@ def _kind_of(msg: Any) -> str:
 
 _COINCIDENT_M2 = 1e-12  # squared cuff distance, m², below which the cuffs coincide
 _TRIM_EVERY_S = 2.0  # s of robot data between two trims (1 s: +2 % CPU; 5 s: +10 % memory)
-NAN3 = (math.nan,) * 3
 NAN8 = (math.nan,) * 8
 _DISP = COL["shoulder_displacement_m"]
