@@ -47,6 +47,20 @@ SPAN = {name: (a, w) for name, a, w in LAYOUT}
 NCOL = sum(w for _, _, w in LAYOUT)
 
 
+def flatten_row(values: Mapping[str, float | Sequence[float]]) -> list[float]:
+    """One row's floats in the matrix's column order, from its values by column name (a
+    vector column as its components, of its width): a new column is added in
+    :data:`ROW_COLUMNS` (and ``_WIDTHS``) and where its value is computed."""
+    out: list[float] = []
+    for name in ROW_COLUMNS:
+        v = values[name]
+        if isinstance(v, float | int):
+            out.append(v)
+        else:
+            out += v
+    return out
+
+
 class RowTable(Mapping[str, Any]):
     """The rows of one poll as a read-only mapping ``ROW_COLUMNS`` → arrays, backed by one
     (n, ``NCOL``) matrix: a column is sliced when asked for, so a consumer pays only for

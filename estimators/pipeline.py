@@ -44,7 +44,7 @@ from estimators.cycles import CycleParams, CycleSegmenter
 from estimators.grid_stage import GridStage
 from estimators.imu_stage import ImuStage
 from estimators.nominal import NominalStage
-from estimators.output import COL, NCOL, Output, Quality, RowTable
+from estimators.output import COL, NCOL, Output, Quality, RowTable, flatten_row
 from estimators.params import PipelineParams
 from estimators.robot_stage import RobotStage
 from estimators.verdicts import CycleJudge, CycleVerdict
@@ -568,8 +568,8 @@ class Pipeline:
         return Output(table, fb, verdicts, episodes)
 
     def _row(self, t: float, dec: tuple[bool, int, float], r: Sequence[float]) -> list[float]:
-        """One row in Python floats, in :data:`estimators.output.LAYOUT` order (state filled in
-        later)."""
+        """One row in Python floats, by column name (:data:`estimators.output.ROW_COLUMNS`),
+        flattened in the matrix's order (the state is filled in later)."""
         p = self.params
         with_imu, k, asof = dec
         s = t - p.robot_time_offset_s
@@ -595,11 +595,27 @@ class Pipeline:
             angle = self._angle(x_now, x_a, x_c, prev, t - prev_t, latency)
         if not with_imu:
             self.quality.rows_without_imu += 1
-        good = 1.0 if h_good else 0.0
-        return [
-            t, *p_e, *sh, angle, h_offset, good, disp, math.nan, *q_ra, h_std,
-            h_conf, elev, azim, *nom, conv, *wrist, la,
-        ]  # fmt: skip
+        return flatten_row(
+            {
+                "t": t,
+                "elbow": p_e,
+                "shoulder": sh,
+                "elbow_angle_deg": angle,
+                "heading_offset_deg": h_offset,
+                "heading_converged": 1.0 if h_good else 0.0,
+                "shoulder_displacement_m": disp,
+                "state": math.nan,  # the indicator's code, set from the codes column
+                "q_ra": q_ra,
+                "heading_std_deg": h_std,
+                "heading_confidence": h_conf,
+                "upper_arm_elevation_deg": elev,
+                "upper_arm_azimuth_deg": azim,
+                "nominal_shoulder": nom,
+                "conv_elbow_angle_deg": conv,
+                "wrist": wrist,
+                "upper_arm_length_m": la,
+            }
+        )
 
     def _angle(
         self,
