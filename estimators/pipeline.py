@@ -42,6 +42,7 @@ from estimators.buffers import RowQueue
 from estimators.compensation import CompensationParams, EpisodeTracker, Indicator
 from estimators.cycles import CycleParams, CycleSegmenter
 from estimators.grid_stage import GridStage
+from estimators.heading_stage import HeadingStage
 from estimators.imu_stage import ImuStage
 from estimators.nominal import NominalStage
 from estimators.output import COL, NCOL, Output, Quality, RowTable, flatten_row
@@ -117,15 +118,7 @@ class Pipeline:
         self._n_done = 0
         self._rowq = RowQueue(9)  # wrist, p_E, x_C of the robot samples not yet emitted
         # heading
-        self._hstate = hd.HeadingState()
-        self._hseg = 0
-        self._t_update: float | None = None
-        # heading after each update: t, delta, rate, t_update, std, converged, imu segment,
-        # robot latency
-        self._snaps: list[tuple[float, ...]] = []
-        self._snap_t: list[float] = []
-        self.convergence_time: float | None = None
-        self.first_motion_time: float | None = None
+        self._heading = HeadingStage(self.hp, self.quality)
         self._nominal = NominalStage(p, self.quality)
         # compensation
         self._cp = CompensationParams(
@@ -352,6 +345,21 @@ class Pipeline:
         self._n_decided = i
 
     @property
+    def convergence_time(self) -> float | None:
+        """Time of the heading update that first declared convergence (s), None before."""
+        return self._heading.convergence_time
+
+    @property
+    def first_motion_time(self) -> float | None:
+        """Time of the first heading update whose window had enough motion (s)."""
+        return self._heading.first_motion_time
+
+    @property
+    def heading_state(self) -> hd.HeadingState:
+        """The heading estimator's current state (read it, do not change it)."""
+        return self._heading.state
+
+    @property
     def arm_length_estimate(self) -> float | None:
         """The upper-arm length measured at the rope reference (m), None if none was."""
         return self._nominal.arm_length_estimate
@@ -364,7 +372,7 @@ class Pipeline:
     def status(self) -> dict[str, Any]:
         """What a dashboard shows beside the numbers: convergence and its progress, the
         heading's confidence, the estimated sensor errors, and the data quality."""
-        s = self._hstate
+        s = self._heading.state
         hp = self.hp
         if s.converged:
             progress = 1.0
@@ -373,7 +381,7 @@ class Pipeline:
         else:
             # motion seen so far (sub-windows) and the heading's certainty, whichever lags
             need = hp.min_motion_subwindows * hp.window_s / hp.n_subwindows
-            moved = 0.0 if self.first_motion_time is None else need
+            moved = 0.0 if self._heading.first_motion_time is None else need
             certainty = (
                 0.0
                 if not math.isfinite(s.std)
@@ -389,8 +397,8 @@ class Pipeline:
             "heading_confidence": 0.0 if std is None else 1.0 / (1.0 + (std / 3.0) ** 2),
             "heading_drift_dps": math.degrees(s.rate),
             "excitation_m_s2": s.excitation,
-            "first_motion_t": self.first_motion_time,
-            "converged_t": self.convergence_time,
+            "first_motion_t": self._heading.first_motion_time,
+            "converged_t": self._heading.convergence_time,
             "robot_latency_s": s.lag,
             "acc_bias_m_s2": s.acc_bias.tolist(),
             "lever_error_m": s.lever_error.tolist(),
@@ -444,12 +452,13 @@ class Pipeline:
         # same numbers as sample by sample) once its output, which ends one grid step before
         # the last grid point, reaches the next update.
         dt = self._grid.dt
-        due = self._t_update is None or (
-            math.isfinite(until) and (math.floor(until / dt) - 1) * dt >= self._t_update
+        t_next = self._heading.t_next
+        due = t_next is None or (
+            math.isfinite(until) and (math.floor(until / dt) - 1) * dt >= t_next
         )
         if self._imu.ts is not None and due:
             self._grid.advance(self._imu, self._robot, until)
-            self._run_heading()
+            self._heading.run(self._grid)
         out = self._rows()
         # forgetting old data changes no result, so it is done every few seconds of data:
         # its cost is mostly per call (per poll it would cost as much as the row itself)
@@ -471,52 +480,6 @@ class Pipeline:
         out = self.poll()
         out.extend(self.finish())
         return out
-
-    def _run_heading(self) -> None:
-        hp = self.hp
-        front = self._grid.frontier
-        if not math.isfinite(front):
-            return
-        if self._t_update is None:
-            step = hp.update_interval_s
-            self._t_update = (math.floor(self._grid.t[0] / step) + 1) * step
-        snaps: list[tuple[float, ...]] = []
-        while self._t_update <= front:
-            t_up = self._t_update
-            # updates on a fixed lattice of the sample clock; sparser once converged
-            step = hp.update_interval_s
-            if hp.method == "improved" and self._hstate.converged:
-                step = hp.converged_interval_s
-            self._t_update = (math.floor(t_up / step + 1e-9) + 1) * step
-            seg = int(
-                self._grid.seg[
-                    min(
-                        int(np.searchsorted(self._grid.t, t_up, side="right")) - 1,
-                        len(self._grid.seg) - 1,
-                    )
-                ]
-            )
-            if seg != self._hseg:
-                self._hstate = hd.HeadingState()
-                self._hseg = seg
-                self.quality.heading_resets += 1
-            span = hp.window_s if hp.method == "paper" else max(hp.window_s, hp.fit_window_s)
-            w = self._grid.window(t_up, span, seg)
-            if hp.method == "paper":
-                counted = hd.update_paper(self._hstate, w, hp, t_up)
-            else:
-                counted = hd.update_improved(self._hstate, w, hp, t_up, self._grid.lag)
-            if counted and self.first_motion_time is None:
-                self.first_motion_time = t_up
-            if self._hstate.converged and self.convergence_time is None:
-                self.convergence_time = t_up
-            s = self._hstate
-            d = math.nan if s.delta is None else s.delta
-            snaps.append(
-                (t_up, d, s.rate, s.t_update, s.std, float(s.converged), float(seg), s.lag)
-            )
-        self._snaps.extend(snaps)
-        self._snap_t.extend(s[0] for s in snaps)
 
     def _robot_samples(
         self, t: Array, wrist: Array, prox: Array, elbow: Array | None, off: float
@@ -574,8 +537,7 @@ class Pipeline:
         with_imu, k, asof = dec
         s = t - p.robot_time_offset_s
         # the heading updates the grid had surely produced when the row was decided
-        i = bisect.bisect_right(self._snap_t, min(s, asof) - self._snap_lag) - 1
-        snap = self._snaps[i] if i >= 0 else NAN8
+        snap = self._heading.snapshot(min(s, asof) - self._snap_lag)
         lat = snap[7]
         latency = (lat if lat >= 0.0 else 0.0) if math.isfinite(lat) else 0.0  # M.maximum
         ok_p, q_p, seg_p = self._imu.at(s - latency, asof)
@@ -652,13 +614,9 @@ class Pipeline:
             self._robot.trim(keep)
         if self._grid_trimmed != self._grid.frontier:
             self._grid_trimmed = self._grid.frontier
-            self._grid.trim(self._grid.frontier - max(self.hp.window_s, self.hp.fit_window_s) - 1.0)
+            self._grid.trim(self._grid.frontier - self._heading.span_s - 1.0)
         if self._n_done < len(self._row_t):
-            s_next = self._row_t[self._n_done] - off
-            cut = bisect.bisect_right(self._snap_t, s_next - 1.0) - 2
-            if cut > 0:
-                del self._snaps[:cut]
-                del self._snap_t[:cut]
+            self._heading.trim(self._row_t[self._n_done] - off - 1.0)
         # forget rows already emitted (indices stay consistent through the offset); soon:
         # in a service, long lists are what the garbage collector's full passes walk
         if self._n_done > 256:
@@ -705,5 +663,4 @@ def _kind_of(msg: Any) -> str:
 
 _COINCIDENT_M2 = 1e-12  # squared cuff distance, m², below which the cuffs coincide
 _TRIM_EVERY_S = 2.0  # s of robot data between two trims (1 s: +2 % CPU; 5 s: +10 % memory)
-NAN8 = (math.nan,) * 8
 _DISP = COL["shoulder_displacement_m"]

@@ -129,7 +129,7 @@ def paper_run(short_session: Session) -> tuple[Output, Pipeline, int | None]:
         p.feed(m)
         out.extend(p.poll())
         if conv_at is None and p.status()["heading_converged"]:
-            conv_at = p._hstate.n_counted
+            conv_at = p.heading_state.n_counted
     out.extend(p.finish())
     return out, p, conv_at
 
@@ -165,7 +165,7 @@ def test_paper_schedule_on_a_noisy_session(paper_run) -> None:
     five counted windows two-step, convergence at the first window from the sixth on whose
     last five changes are each ≤ 5°, then the one-step grid (±5° per update)."""
     _, p, conv_at = paper_run
-    s = p._hstate
+    s = p.heading_state
     est = [math.degrees(d) for d in s.history]
     assert np.allclose(est, np.round(est), atol=1e-9)  # the 1° grid
     changes = [abs((b - a + 180.0) % 360.0 - 180.0) for a, b in zip(est, est[1:], strict=False)]
