@@ -540,8 +540,8 @@ class Pipeline:
         snap = self._heading.snapshot(min(s, asof) - self._snap_lag)
         lat = snap[7]
         latency = (lat if lat >= 0.0 else 0.0) if math.isfinite(lat) else 0.0  # M.maximum
-        ok_p, q_p, seg_p = self._imu.at(s - latency, asof)
         ok_n, q_n, seg_n = self._imu.at(s, asof)
+        ok_p, q_p, seg_p = (ok_n, q_n, seg_n) if latency == 0.0 else self._imu.at(s - latency, asof)
         ok = ok_p and with_imu and ok_n and seg_n == seg_p
         (_, h_std, h_conf, h_offset, h_good), q_ra, x_now, x_a = rows.heading_arm(
             s, ok, snap, seg_p, q_n, q_p
