@@ -377,7 +377,8 @@ class Pipeline:
         if s.converged:
             progress = 1.0
         elif hp.method == "paper":
-            progress = min(s.n_counted / (hp.n_two_step + hp.converge_count), 0.99)
+            # the paper converges at the sixth counted window at the earliest (§3.2.2)
+            progress = min(s.n_counted / (hp.n_two_step + 1), 0.99)
         else:
             # motion seen so far (sub-windows) and the heading's certainty, whichever lags
             need = hp.min_motion_subwindows * hp.window_s / hp.n_subwindows
