@@ -13,7 +13,6 @@ COPY backend backend
 COPY estimators estimators
 COPY simulator simulator
 # editable: the backend serves frontend/dist from beside its sources
-# (the estimators run interpreted here: no compiler in the slim image, see scripts/build_native.py)
 RUN pip install --no-cache-dir -c constraints.txt -e . \
     && useradd --system --home-dir /data rehab && mkdir -p /data && chown rehab /data
 COPY --from=frontend /src/frontend/dist frontend/dist

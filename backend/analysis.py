@@ -237,28 +237,6 @@ def detail_lines(rows: Mapping[str, np.ndarray], t: list[str] | None = None) -> 
     return _lines(_DET_FMT, [m[:, j] for j in range(m.shape[1])], t)
 
 
-def estimate_payload(rows: dict[str, np.ndarray]) -> dict[str, list[Any]]:
-    """Contract §7 estimate payload: the CSV's columns as parallel arrays (null when empty)."""
-
-    def col(a: np.ndarray) -> list[float | None]:
-        return [None if not math.isfinite(x) else x for x in a.tolist()]
-
-    return {
-        "t": rows["t"].tolist(),
-        "elbow_x": col(rows["elbow"][:, 0]),
-        "elbow_y": col(rows["elbow"][:, 1]),
-        "elbow_z": col(rows["elbow"][:, 2]),
-        "shoulder_x": col(rows["shoulder"][:, 0]),
-        "shoulder_y": col(rows["shoulder"][:, 1]),
-        "shoulder_z": col(rows["shoulder"][:, 2]),
-        "elbow_angle_deg": col(rows["elbow_angle_deg"]),
-        "heading_offset_deg": col(rows["heading_offset_deg"]),
-        "heading_converged": [1 if c else 0 for c in rows["heading_converged"].tolist()],
-        "shoulder_displacement_m": col(rows["shoulder_displacement_m"]),
-        "state": [STATE_NAMES[int(s)] or None for s in rows["state"].tolist()],
-    }
-
-
 _FORMAT_ROWS = 1024  # rows formatted together (about 40 s of a live device)
 _STAT_COLUMNS = (
     "t",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -24,27 +25,66 @@ def _load_params(path: str | None) -> PipelineParams:
         raise SystemExit(f"rehab: bad parameters in {path}: {exc}") from None
 
 
-def cmd_analyze(args: argparse.Namespace) -> int:
+def _analyze_one(
+    rec: Path, params: PipelineParams, out: Path, device: str | None, progress: bool
+) -> str:
+    """One recording into ``out``; its summary line (raises on a recording it cannot read)."""
     from backend.analysis import analyze, gc_paused
 
-    rec = Path(args.recording)
-    if not rec.is_file():
-        print(f"rehab analyze: no such recording: {rec}", file=sys.stderr)
-        return 2
-    params = _load_params(args.params)
     t0 = time.perf_counter()
     with gc_paused():
-        run, rep = analyze(rec, params, args.out, device=args.device, progress=sys.stderr.isatty())
+        run, rep = analyze(rec, params, out, device=device, progress=progress)
     dt = time.perf_counter() - t0
     s = rep["summary"]
     q = rep["data_quality"]
     rejected = sum(q["rejected"].values())
-    print(
+    return (
         f"{run.device or '(no device)'}: {s['rows']} estimates, {s['cycles']} cycles "
         f"({s['compensatory_cycles']} compensatory), heading converged at "
-        f"{rep['heading']['converged_t']}, {rejected} messages rejected, {dt:.2f} s -> {args.out}"
+        f"{rep['heading']['converged_t']}, {rejected} messages rejected, {dt:.2f} s -> {out}"
     )
-    return 0
+
+
+def _out_name(rec: Path) -> str:
+    """An output folder's name for a recording: its file name without the recording suffixes."""
+    name = rec.name
+    for suffix in (".gz", ".jsonl", ".mcap"):
+        name = name.removesuffix(suffix)
+    return name or rec.name
+
+
+def cmd_analyze(args: argparse.Namespace) -> int:
+    recs = [Path(r) for r in args.recording]
+    missing = [r for r in recs if not r.is_file()]
+    for r in missing:
+        print(f"rehab analyze: no such recording: {r}", file=sys.stderr)
+    if missing:
+        return 2
+    params = _load_params(args.params)
+    out = Path(args.out)
+    if len(recs) == 1:
+        print(_analyze_one(recs[0], params, out, args.device, sys.stderr.isatty()))
+        return 0
+    # many recordings (a study's re-analysis): DIR/<recording name>/ each, in parallel
+    names = [_out_name(r) for r in recs]
+    if len(set(names)) != len(names):
+        names = [f"{i:04d}_{n}" for i, n in enumerate(names)]
+    jobs = max(1, min(args.jobs, len(recs)))
+    failed = 0
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        futures = [
+            pool.submit(_analyze_one, r, params, out / n, args.device, False)
+            for r, n in zip(recs, names, strict=True)
+        ]
+        for r, f in zip(recs, futures, strict=True):
+            try:
+                print(f.result())
+            except Exception as exc:  # one bad recording does not stop the others
+                failed += 1
+                print(f"rehab analyze: {r}: {exc}", file=sys.stderr)
+    return 1 if failed else 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -52,9 +92,12 @@ def main(argv: list[str] | None = None) -> int:
     sub = ap.add_subparsers(dest="command", required=True)
 
     a = sub.add_parser("analyze", help="run the pipeline over a recording (contract §6)")
-    a.add_argument("recording")
+    a.add_argument("recording", nargs="+", help="one recording, or many: DIR/<name>/ each")
     a.add_argument("--params", help="parameters JSON (contract §4)")
     a.add_argument("--out", required=True, help="output directory")
+    a.add_argument(
+        "--jobs", type=int, default=os.cpu_count() or 1, help="processes for many recordings"
+    )
     a.add_argument("--device", help="device to analyse when the recording has several")
     a.set_defaults(func=cmd_analyze)
 

@@ -6,7 +6,7 @@ with a short machine-readable ``reason`` (used as a counter name) and a human
 ``detail``. Inside the project decoded messages are trusted.
 
 Stateless checks only: ordering *across* messages (time going backwards, sequence
-loss) needs per-stream state and lives in :mod:`backend.quality`.
+loss) needs per-stream state and is checked by the pipeline (:mod:`estimators.pipeline`).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import math
 import operator
 import struct
 from collections.abc import Iterable
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 from typing import Any, TypeAlias, get_args
 
 import msgspec
@@ -91,14 +91,6 @@ class EventMessage:
 
 
 Message: TypeAlias = ImuMessage | RobotMessage | CameraMessage | EventMessage
-
-
-@dataclass(frozen=True, slots=True)
-class EstimateMessage:
-    """Service output, one entry per robot sample (contract §7): column name -> values."""
-
-    device: str
-    columns: dict[str, list[Any]] = field(default_factory=dict)
 
 
 # --------------------------------------------------------------------------- decoding
@@ -584,19 +576,3 @@ def encode_with_prefix(msg: Message, prefix: str) -> tuple[str, dict[str, Any]]:
 def dumps(payload: dict[str, Any]) -> bytes:
     """Compact UTF-8 JSON, refusing NaN (the contract's JSON has none)."""
     return json.dumps(payload, separators=(",", ":"), allow_nan=False).encode("utf-8")
-
-
-def feedback_state(t: float, state: str) -> dict[str, Any]:
-    return {"t": t, "type": "state", "state": state}
-
-
-def feedback_cycle(
-    start: float, end: float, outside_fraction: float, compensatory: bool
-) -> dict[str, Any]:
-    return {
-        "type": "cycle",
-        "start": start,
-        "end": end,
-        "outside_fraction": outside_fraction,
-        "compensatory": compensatory,
-    }

@@ -1,8 +1,4 @@
-"""A cycle boundary: a float time that carries where its cycle started, and how it was found.
-
-Its own module, kept interpreted: compiled code (``scripts/build_native.py``) would unbox a
-float subclass into a plain double and lose the extras.
-"""
+"""A cycle boundary: a float time that carries where its cycle started, and how it was found."""
 
 from __future__ import annotations
 

@@ -110,12 +110,6 @@ def displacement(shoulder: ArrayLike, nominal: ArrayLike, norm: Norm = "horizont
     return out
 
 
-# one sample's state as an array, shared (read-only: who needs to write takes a copy)
-ONE_CODE = {c: np.array([c], dtype=np.int8) for c in (UNKNOWN, OK, OUTSIDE, WARNING)}
-for _a in ONE_CODE.values():
-    _a.flags.writeable = False
-
-
 def state_name(code: int) -> str | None:
     """Contract name of a state code; ``None`` for ``UNKNOWN``."""
     return STATE_NAMES[code] if 0 <= code < len(STATE_NAMES) else None
@@ -146,8 +140,6 @@ class Indicator:
     unknown samples between two samples in the same state emits nothing. Consumers therefore
     always hold the latest known state.
     """
-
-    _SMALL = 16  # chunks up to this size take the scalar path (same arithmetic, less overhead)
 
     def __init__(self, params: CompensationParams | None = None) -> None:
         self.params = params if params is not None else CompensationParams()
@@ -202,25 +194,16 @@ class Indicator:
         self._take_boundaries(boundaries)
         if tolerated_s is None:
             tolerated_s = self.params.warning_after_s
-        if isinstance(t, list) and isinstance(displacement, list) and len(t) <= self._SMALL:
-            # floats: no numpy calls
-            if len(displacement) != len(t):
-                raise ValueError("t and displacement must both have shape (N,)")
-            if len(t) == 1:  # the live case; copying a ready array is twice as fast as np.array
-                changes: list[tuple[float, str]] = []
-                code = self._step(t[0], displacement[0], tolerated_s, changes)
-                return ONE_CODE[code].copy(), changes
-            return self._update_small(t, displacement, tolerated_s)
-        tt = np.asarray(t, dtype=np.float64)
-        dd = np.asarray(displacement, dtype=np.float64)
-        if tt.shape != dd.shape or tt.ndim != 1:
+        ts = np.asarray(t, dtype=np.float64)
+        ds = np.asarray(displacement, dtype=np.float64)
+        if ts.shape != ds.shape or ts.ndim != 1:
             raise ValueError("t and displacement must both have shape (N,)")
-        n = tt.shape[0]
-        if n == 0:
-            return np.zeros(0, dtype=np.int8), []
-        if n <= self._SMALL:
-            return self._update_small(tt.tolist(), dd.tolist(), tolerated_s)
-        return self._update_vector(tt, dd, tolerated_s)
+        changes: list[tuple[float, str]] = []
+        codes = [
+            self._step(ti, di, tolerated_s, changes)
+            for ti, di in zip(ts.tolist(), ds.tolist(), strict=True)
+        ]
+        return np.array(codes, dtype=np.int8), changes
 
     def push(
         self,
@@ -252,12 +235,10 @@ class Indicator:
             del self._sched_t[:k]
             del self._sched_v[:k]
 
-    # -- scalar path (small chunks) -----------------------------------------------------------
-
     def _step(
         self, ti: float, di: float, override: float | None, changes: list[tuple[float, str]]
     ) -> int:
-        """One sample's code (the rule :meth:`_update_vector` applies to a chunk)."""
+        """One sample's code."""
         if self._sched_t and self._sched_t[0] <= ti:
             self._advance_schedule(ti)
         if di > self._tol_m:  # False for NaN
@@ -273,66 +254,6 @@ class Indicator:
             self._last_known = code
             changes.append((ti, STATE_NAMES[code]))
         return code
-
-    def _update_small(
-        self, ts: list[float], ds: list[float], override: float | None
-    ) -> tuple[CodeArray, list[tuple[float, str]]]:
-        changes: list[tuple[float, str]] = []
-        codes = [self._step(ti, di, override, changes) for ti, di in zip(ts, ds, strict=True)]
-        return np.array(codes, dtype=np.int8), changes
-
-    # -- vector path ------------------------------------------------------------------------
-
-    def _update_vector(
-        self, t: FloatArray, d: FloatArray, override: float | None
-    ) -> tuple[CodeArray, list[tuple[float, str]]]:
-        n = t.shape[0]
-        unknown = np.isnan(d)
-        outside = d > self.params.tolerance_m  # NaN compares False
-        # tolerated duration per sample
-        tol: float | FloatArray
-        if override is not None:
-            tol = override
-            self._advance_schedule(float(t[-1]))
-        elif self._sched_t and self._sched_t[0] <= t[-1]:
-            k = bisect.bisect_right(self._sched_t, float(t[-1]))
-            times = np.array(self._sched_t[:k])
-            values = np.array([self._tol, *self._sched_v[:k]])
-            tol = values[np.searchsorted(times, t, side="right")]
-            self._advance_schedule(float(t[-1]))
-        else:
-            tol = self._tol
-        # outside runs: a run starts at an outside sample whose predecessor is not outside or
-        # lies more than max_hold_s earlier
-        prev_t = np.empty(n)
-        prev_t[0] = self._t_last
-        prev_t[1:] = t[:-1]
-        gap = (t - prev_t) > self.params.max_hold_s
-        prev_out = np.empty(n, dtype=bool)
-        prev_out[0] = self._run_start is not None
-        prev_out[1:] = outside[:-1]
-        starts = outside & (~prev_out | gap)
-        idx = np.where(starts, np.arange(n), -1)
-        np.maximum.accumulate(idx, out=idx)
-        carried = self._run_start if self._run_start is not None else math.nan
-        run_start = np.where(idx >= 0, t[idx], carried)
-        warning = outside & ((t - run_start) > tol)
-        codes = np.where(unknown, UNKNOWN, np.where(warning, WARNING, outside.astype(np.int8)))
-        codes = codes.astype(np.int8)
-        # state changes among known samples
-        known = np.flatnonzero(~unknown)
-        changes: list[tuple[float, str]] = []
-        if known.size:
-            kc = codes[known]
-            prev = np.empty_like(kc)
-            prev[0] = self._last_known
-            prev[1:] = kc[:-1]
-            for i in np.flatnonzero(kc != prev).tolist():
-                changes.append((float(t[known[i]]), STATE_NAMES[int(kc[i])]))
-            self._last_known = int(kc[-1])
-        self._run_start = float(run_start[-1]) if outside[-1] else None
-        self._t_last = float(t[-1])
-        return codes, changes
 
 
 @dataclass(frozen=True, slots=True)
@@ -360,8 +281,6 @@ class EpisodeTracker:
     by the call that sees the sample ending the run (or by :meth:`flush`).
     """
 
-    _SMALL = 16  # chunks up to this size take the scalar path
-
     def __init__(self, params: CompensationParams | None = None) -> None:
         self.params = params if params is not None else CompensationParams()
         self._hold = self.params.max_hold_s
@@ -376,16 +295,6 @@ class EpisodeTracker:
         """``t`` (N,) s, ``codes`` (N,) indicator codes, ``displacement`` (N,) m (optional,
         for the peak). Returns the episodes that ended in this chunk."""
         episodes: list[Episode] = []
-        if isinstance(t, list) and isinstance(displacement, list) and len(t) <= self._SMALL:
-            cl: list[int] = (codes if isinstance(codes, np.ndarray) else np.asarray(codes)).tolist()
-            if not len(cl) == len(displacement) == len(t):
-                raise ValueError("t and codes must both have shape (N,)")
-            if len(t) == 1:
-                return self.push(t[0], cl[0], displacement[0])
-            else:
-                for ti, ci, di in zip(t, cl, displacement, strict=True):
-                    self._step(ti, ci, di, episodes)
-            return episodes  # floats: no numpy calls
         tt = np.asarray(t, dtype=np.float64)
         cc = np.asarray(codes, dtype=np.int8)
         n = tt.shape[0]
@@ -394,46 +303,8 @@ class EpisodeTracker:
         dd = np.full(n, np.nan) if displacement is None else np.asarray(displacement, np.float64)
         if dd.shape != (n,):
             raise ValueError("displacement must have shape (N,)")
-        if n == 0:
-            return episodes
-        if n <= self._SMALL:
-            for ti, ci, di in zip(tt.tolist(), cc.tolist(), dd.tolist(), strict=True):
-                self._step(ti, ci, di, episodes)
-            return episodes
-        hold = self.params.max_hold_s
-        out_mask = cc >= OUTSIDE
-        prev_t = np.empty(n)
-        prev_t[0] = self._t_last
-        prev_t[1:] = tt[:-1]
-        gap = (tt - prev_t) > hold
-        prev_out = np.empty(n, dtype=bool)
-        prev_out[0] = self._start is not None
-        prev_out[1:] = out_mask[:-1]
-        # run boundaries: a run ends before sample i if i-1 was outside and (i not outside or gap)
-        ends = np.flatnonzero(prev_out & (~out_mask | gap))
-        starts = np.flatnonzero(out_mask & (~prev_out | gap))
-        # walk the (few) run starts/ends in order
-        si = 0
-        pos = 0
-        for e in ends.tolist():
-            # the run ending at e began at the latest start < e, or was carried in
-            while si < starts.size and starts[si] < e:
-                self._open(float(tt[starts[si]]))
-                pos = int(starts[si])
-                si += 1
-            self._absorb(cc, dd, pos, e)
-            t_prev = float(prev_t[e])
-            end = t_prev + min(float(tt[e]) - t_prev, hold)
-            ep = self._close(end)
-            if ep is not None:
-                episodes.append(ep)
-            pos = e
-        while si < starts.size:
-            self._open(float(tt[starts[si]]))
-            pos = int(starts[si])
-            si += 1
-        self._absorb(cc, dd, pos, n)
-        self._t_last = float(tt[-1])
+        for ti, ci, di in zip(tt.tolist(), cc.tolist(), dd.tolist(), strict=True):
+            self._step(ti, ci, di, episodes)
         return episodes
 
     def push(self, t: float, code: int, displacement: float) -> list[Episode]:
@@ -446,7 +317,7 @@ class EpisodeTracker:
         return episodes
 
     def _step(self, ti: float, ci: int, di: float, episodes: list[Episode]) -> None:
-        """One sample, the same decisions as the vector path."""
+        """One sample."""
         if ci >= OUTSIDE:
             if self._start is not None and ti - self._t_last > self._hold:
                 self._end_run(ti, episodes)
@@ -476,21 +347,6 @@ class EpisodeTracker:
         self._start = start
         self._warned = False
         self._peak = -math.inf
-
-    def _absorb(self, cc: CodeArray, dd: FloatArray, lo: int, hi: int) -> None:
-        """Fold samples ``lo:hi`` of the chunk into the ongoing run (if any)."""
-        if self._start is None or hi <= lo:
-            return
-        seg = cc[lo:hi]
-        m = seg >= OUTSIDE
-        if not m.any():
-            return
-        if (seg[m] == WARNING).any():
-            self._warned = True
-        vals = dd[lo:hi][m]
-        vals = vals[~np.isnan(vals)]
-        if vals.size:
-            self._peak = max(self._peak, float(vals.max()))
 
     def _close(self, end: float) -> Episode | None:
         start = self._start

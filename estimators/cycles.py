@@ -38,7 +38,6 @@ from numpy.typing import ArrayLike, NDArray
 
 from estimators.boundary import Boundary as Boundary  # re-exported: its home until now
 from estimators.boundary import Source
-from estimators.buffers import RowBuffer
 
 FloatArray: TypeAlias = NDArray[np.float64]
 Mode: TypeAlias = Literal["auto", "path", "events", "reach"]
@@ -122,11 +121,7 @@ class _MovingWindow:
     none). For each sample the mean of ``vals`` over the moving samples with
     ``t >= t[i] - centre_window_s`` (including ``i``) comes from exclusive prefix sums
     accumulated sequentially since the start, so the result does not depend on chunking.
-    :meth:`update` (vectorised) and :meth:`step` (one sample) do the same arithmetic.
-
-    The history rows live in :class:`RowBuffer` arrays for :meth:`update` and in deques of
-    float tuples for :meth:`step` (a numpy row write or read costs more than the whole step);
-    they move between the two forms only when the caller switches between the two.
+    One sample at a time (:meth:`step`); the history rows are float tuples in deques.
     """
 
     def __init__(self, p: CycleParams, width: int) -> None:
@@ -134,77 +129,15 @@ class _MovingWindow:
         self._lag = p.still_window_s
         self._r2 = p.still_radius_m * p.still_radius_m
         self._width = width
-        self._pos = RowBuffer(3)  # t, x, y back to the last sample at/before t - still_window_s
-        self._h = RowBuffer(width + 2)  # t, exclusive prefix sums of [moving, moving * vals]
         self._total = [0.0] * (width + 1)
-        # while stepping, the same rows as float tuples: the last position at or before
-        # t - still_window_s (None: none yet), the later ones, and the prefix sums
-        self._stepping = False
+        # the last position at or before t - still_window_s (None: none yet), the later
+        # ones (t, x, y), and the exclusive prefix sums of [moving, moving * vals] (t first)
         self._anchor: tuple[float, ...] | None = None
         self._pos_q: deque[tuple[float, ...]] = deque()
         self._h_q: deque[tuple[float, ...]] = deque()
 
-    def _to_queues(self) -> None:
-        self._stepping = True
-        self._anchor = None  # the first step finds it among the rows
-        self._pos_q = deque(map(tuple, self._pos.view().tolist()))
-        self._h_q = deque(map(tuple, self._h.view().tolist()))
-        self._pos.drop(len(self._pos))
-        self._h.drop(len(self._h))
-
-    def _to_buffers(self) -> None:
-        self._stepping = False
-        pos = list(self._pos_q)
-        if self._anchor is not None:
-            pos.insert(0, self._anchor)
-        for buf, rows in ((self._pos, pos), (self._h, list(self._h_q))):
-            if rows:
-                buf.append(np.array(rows, dtype=np.float64))
-        self._pos_q.clear()
-        self._h_q.clear()
-
-    def update(
-        self, t: FloatArray, xy: FloatArray, vals: FloatArray
-    ) -> tuple[FloatArray, FloatArray]:
-        """``t`` (n,), ``xy`` (n,2), ``vals`` (n, width) -> means (n, width) (NaN where the
-        window has no moving sample) and moving-sample counts (n,)."""
-        if self._stepping:
-            self._to_buffers()
-        n = t.shape[0]
-        rows = np.empty((n, 3))
-        rows[:, 0] = t
-        rows[:, 1:] = xy
-        self._pos.append(rows)
-        hp = self._pos.view()
-        hpt = np.ascontiguousarray(hp[:, 0])
-        j = np.searchsorted(hpt, t - self._lag, side="right") - 1
-        d = xy - hp[np.maximum(j, 0), 1:]
-        moving = ((d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) > self._r2) & (j >= 0)
-        self._pos.drop(int(np.searchsorted(hpt, t[-1] - self._lag, side="right")) - 1)
-        acc = np.empty((n + 1, self._width + 1))
-        acc[0] = self._total
-        acc[1:, 0] = moving
-        acc[1:, 1:] = vals * moving[:, None]
-        np.add.accumulate(acc, axis=0, out=acc)
-        rows = np.empty((n, self._width + 2))
-        rows[:, 0] = t
-        rows[:, 1:] = acc[:-1]
-        self._h.append(rows)
-        h = self._h.view()
-        ht = np.ascontiguousarray(h[:, 0])
-        k = np.searchsorted(ht, t - self._w, side="left")
-        sums = acc[1:] - h[k, 1:]
-        counts = sums[:, 0]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            means: FloatArray = sums[:, 1:] / counts[:, None]
-        self._total = acc[-1].tolist()
-        self._h.drop(int(np.searchsorted(ht, t[-1] - self._w, side="left")))
-        return means, counts
-
     def _moving(self, t: float, x: float, y: float) -> float:
         """Queue one sample's position; 1.0 if it is moving, else 0.0."""
-        if not self._stepping:
-            self._to_queues()
         pos = self._pos_q
         pos.append((t, x, y))
         lim = t - self._lag
@@ -249,8 +182,6 @@ class _MovingWindow:
     def step_xy(self, t: float, x: float, y: float) -> tuple[float, float]:
         """:meth:`step` with ``vals = (x, y)``, helpers written out (the path detector's
         centre, for every live sample): the mean x and y."""
-        if not self._stepping:
-            self._to_queues()
         pos = self._pos_q
         pos.append((t, x, y))
         lim = t - self._lag
@@ -286,23 +217,11 @@ class _MovingWindow:
         return math.nan, math.nan
 
 
-_BLOCK = 128  # the vectorised state machines look this many samples ahead at a time
-
-
-def _first(mask: NDArray[np.bool_]) -> int:
-    """Index of the first True, or -1."""
-    if not mask.size:
-        return -1
-    k = int(mask.argmax())
-    return k if mask[k] else -1
-
-
 class _Detector:
-    """Shared bookkeeping of the motion-based detectors: cycle bounds, restarts, dispatch
-    between the vectorised path (large chunks) and the per-sample path (small chunks)."""
+    """Shared bookkeeping of the motion-based detectors: cycle bounds, restarts; samples are
+    processed one by one (:meth:`step`)."""
 
     source: Source = "path"
-    SMALL = 12  # chunks up to this size are processed sample by sample
 
     def __init__(self, p: CycleParams) -> None:
         self.p = p
@@ -337,18 +256,12 @@ class _Detector:
         if self.origin is None:
             self.origin = (float(xy[0, 0]), float(xy[0, 1]))
         out: list[Boundary] = []
-        if n <= self.SMALL:
-            ox, oy = self.origin
-            for ti, (xi, yi) in zip(t.tolist(), xy.tolist(), strict=True):
-                self.step(ti, xi - ox, yi - oy, out)
-        else:
-            self.vector(t, xy - np.array(self.origin), out)
+        ox, oy = self.origin
+        for ti, (xi, yi) in zip(t.tolist(), xy.tolist(), strict=True):
+            self.step(ti, xi - ox, yi - oy, out)
         return out
 
     def step(self, t: float, x: float, y: float, out: list[Boundary]) -> None:
-        raise NotImplementedError
-
-    def vector(self, t: FloatArray, rel: FloatArray, out: list[Boundary]) -> None:
         raise NotImplementedError
 
 
@@ -444,71 +357,6 @@ class _PathDetector(_Detector):
             if not (big >= level if d > 0 else big <= level):
                 return
         self._crossing(t0, big0, t, big, out)
-
-    def vector(self, t: FloatArray, rel: FloatArray, out: list[Boundary]) -> None:
-        p = self.p
-        centre, _ = self._win.update(t, rel, rel)
-        v = rel - centre
-        vx = v[:, 0]
-        vy = v[:, 1]
-        with np.errstate(invalid="ignore"):
-            idx = np.flatnonzero(vx * vx + vy * vy >= self._r2min)
-        m = idx.size
-        if m == 0:
-            return
-        tu = t[idx]
-        phi = np.array(list(map(math.atan2, vy[idx].tolist(), vx[idx].tolist())))
-        prev_t = np.empty(m)
-        prev_phi = np.empty(m)
-        prev_t[1:] = tu[:-1]
-        prev_phi[1:] = phi[:-1]
-        if self._prev is None:
-            prev_t[0], prev_phi[0], carry = tu[0], phi[0], 0.0
-        else:
-            prev_t[0], prev_phi[0], carry = self._prev
-        st = phi - prev_phi
-        st = np.where(st > math.pi, st - TWO_PI, np.where(st <= -math.pi, st + TWO_PI, st))
-        restart = (np.abs(st) > p.max_phase_step_rad) | ((tu - prev_t) > p.max_gap_s)
-        if self._prev is None:
-            restart[0] = True
-        acc = np.empty(m + 1)
-        acc[0] = carry
-        acc[1:] = st
-        np.add.accumulate(acc, out=acc)
-        big = acc[1:]  # unwrapped phase of the usable samples
-        restarts = np.flatnonzero(restart)
-        i = 0
-        while i < m:
-            r = int(np.searchsorted(restarts, i))
-            k_rs = int(restarts[r]) if r < restarts.size else m
-            if k_rs == i:
-                self._restart(float(tu[i]), float(big[i]))
-                i += 1
-                continue
-            # first usable sample past the timeout
-            k_to = int(np.searchsorted(tu, self.anchor() + p.max_cycle_s, side="right"))
-            lim = min(k_rs, max(k_to, i))
-            hi = min(lim, i + _BLOCK)
-            seg = big[i:hi]
-            if self._dir == 0:
-                up = seg - self._ref_phi
-                c = _first((up >= TWO_PI) | (up <= -TWO_PI))
-            else:
-                level = self._level()
-                c = _first(seg >= level if self._dir > 0 else seg <= level)
-            if c < 0:
-                if hi == lim == k_to < min(m, k_rs):
-                    self._restart(float(tu[hi]), float(big[hi]))
-                    i = hi + 1
-                else:
-                    i = hi
-                continue
-            j = i + c
-            if self._dir == 0:
-                self._dir = 1 if big[j] - self._ref_phi >= TWO_PI else -1
-            self._crossing(float(prev_t[j]), float(acc[j]), float(tu[j]), float(big[j]), out)
-            i = j + 1
-        self._prev = (float(tu[-1]), float(phi[-1]), float(big[-1]))
 
 
 class _ReachDetector(_Detector):
@@ -631,133 +479,6 @@ class _ReachDetector(_Detector):
                 return self._fire(b, t, pv, out)
         self._fold(pv, pv)
         return True
-
-    # -- vectorised ---------------------------------------------------------------------------
-
-    def vector(self, t: FloatArray, rel: FloatArray, out: list[Boundary]) -> None:
-        p = self.p
-        x = rel[:, 0]
-        y = rel[:, 1]
-        mom = np.empty((t.shape[0], 5))
-        mom[:, 0] = x
-        mom[:, 1] = y
-        mom[:, 2] = x * x
-        mom[:, 3] = y * y
-        mom[:, 4] = x * y
-        means, counts = self._win.update(t, rel, mom)
-        mx = means[:, 0]
-        my = means[:, 1]
-        a = means[:, 2] - mx * mx
-        c = means[:, 3] - my * my
-        b = means[:, 4] - mx * my
-        h = 0.5 * (a - c)
-        lam = 0.5 * (a + c) + np.sqrt(h * h + b * b)
-        ge = a >= c
-        ux = np.where(ge, lam - c, b)
-        uy = np.where(ge, b, lam - a)
-        nrm = np.sqrt(ux * ux + uy * uy)
-        with np.errstate(invalid="ignore"):
-            idx = np.flatnonzero((nrm > 0.0) & (counts >= 3.0))
-        m = idx.size
-        if m == 0:
-            return
-        tu = t[idx]
-        ux = ux[idx] / nrm[idx]
-        uy = uy[idx] / nrm[idx]
-        px = x[idx]
-        py = y[idx]
-        prev_t = np.empty(m)
-        prev_t[1:] = tu[:-1]
-        prev_t[0] = tu[0] if self._prev is None else self._prev[0]
-        gap = (tu - prev_t) > p.max_gap_s
-        if self._prev is None:
-            gap[0] = True
-        pv = np.empty(m)  # projections, each with the reference axis in force at that sample
-        i = 0
-        force = -1  # restart needed at this index (timeout, too-short cycle, axis turned)
-        while i < m:
-            if gap[i] or force == i:
-                self._restart(float(tu[i]), float(ux[i]), float(uy[i]))
-            g = _first(gap[i + 1 :])
-            hi = m if g < 0 else i + 1 + g
-            rx, ry = self._ref
-            dot = ux[i:hi] * rx + uy[i:hi] * ry
-            pv[i:hi] = np.where(dot >= 0.0, 1.0, -1.0) * (px[i:hi] * ux[i:hi] + py[i:hi] * uy[i:hi])
-            turned = _first(np.abs(dot) < self._cos_turn)
-            if turned == 0:
-                force = i
-                continue
-            if turned > 0:
-                hi = i + turned
-            j = self._schmitt_vector(tu, pv, prev_t, i, hi, out)
-            if j < hi:
-                force = j
-                i = j
-                continue
-            if turned > 0:
-                force = hi
-            i = hi
-        self._prev = (float(tu[-1]), float(pv[-1]))
-
-    def _schmitt_vector(
-        self,
-        tu: FloatArray,
-        pv: FloatArray,
-        prev_t: FloatArray,
-        i: int,
-        hi: int,
-        out: list[Boundary],
-    ) -> int:
-        """The trigger over samples ``i:hi`` (one reference axis). Returns ``hi``, or the index
-        of a sample where the detector must restart (timeout, too-short cycle)."""
-        p = self.p
-        while i < hi:
-            k_to = int(np.searchsorted(tu, self.anchor() + p.max_cycle_s, side="right"))
-            lim = min(hi, max(k_to, i))  # samples from k_to on are past the timeout
-            stop = min(lim, i + _BLOCK)
-            seg = pv[i:stop]
-            lo: float | FloatArray
-            rng: float | FloatArray
-            if self._range is None:
-                lo = np.minimum.accumulate(np.concatenate(([self._run[0]], seg)))[1:]
-                up = np.maximum.accumulate(np.concatenate(([self._run[1]], seg)))[1:]
-                rng = up - lo
-                ok: bool | NDArray[np.bool_] = rng >= p.min_range_m
-            else:
-                lo, up0 = self._range
-                rng = up0 - lo
-                ok = rng >= p.min_range_m
-            if not self._armed:
-                c = _first(ok & (seg >= lo + p.reach_arm_fraction * rng))
-                if c >= 0:
-                    self._armed = True
-                    self._fold(float(seg[: c + 1].min()), float(seg[: c + 1].max()))
-                    i += c + 1
-                    continue
-            else:
-                level = lo + p.reach_return_fraction * rng
-                c = _first(ok & (seg <= level))
-                if c >= 0:
-                    j = i + c
-                    if c:
-                        self._fold(float(seg[:c].min()), float(seg[:c].max()))
-                    lv = float(level[c]) if isinstance(level, np.ndarray) else float(level)
-                    t1, p1 = float(tu[j]), float(pv[j])
-                    b = t1
-                    p0 = float(pv[j - 1]) if j > 0 else (self._prev[1] if self._prev else math.nan)
-                    if p0 > lv:
-                        t0 = float(prev_t[j])
-                        b = t0 + (p0 - lv) / (p0 - p1) * (t1 - t0)
-                    if not self._fire(b, t1, p1, out):
-                        return j
-                    i = j + 1
-                    continue
-            if seg.size:
-                self._fold(float(seg.min()), float(seg.max()))
-            if stop == lim < hi:  # timeout at `lim`
-                return lim
-            i = stop
-        return hi
 
 
 class CycleSegmenter:

@@ -16,26 +16,17 @@ from estimators.imu_stage import ImuStage
 from estimators.params import PipelineParams
 from estimators.robot_stage import RobotStage
 
-try:  # the compiled loop behind signal.sosfilt (as estimators.filters calls it)
-    from scipy.signal._sosfilt import _sosfilt
-except ImportError:  # pragma: no cover - a scipy that moved it: the public path
-    _sosfilt = None
-
 Array: TypeAlias = NDArray[np.float64]
 Idx: TypeAlias = NDArray[Any]  # integer and boolean arrays
 NCH = 18  # grid channels: v (3), u (3), sensor axes in I (9), robot elbow (3)
 
 
 def _filter(f: LowPass, x: Array, z: Array) -> None:
-    """``f`` along the rows of ``x`` (C, N), C-contiguous, in place, from and into the state
-    ``z`` (C, sections, 2): LowPass's compiled call without its two transposing copies (the
-    grid keeps its channels as rows)."""
-    if _sosfilt is None:  # pragma: no cover - a scipy that moved it: the public path
-        y, zf = f(x.T, z.transpose(1, 2, 0))
-        x[...] = y.T
-        z[...] = zf.transpose(2, 0, 1)
-    else:
-        _sosfilt(f.sos, x, z)
+    """``f`` along the rows of ``x`` (C, N), in place, from and into the state ``z``
+    (C, sections, 2) (the grid keeps its channels as rows)."""
+    y, zf = f(x.T, z.transpose(1, 2, 0))
+    x[...] = y.T
+    z[...] = zf.transpose(2, 0, 1)
 
 
 def _state(f: LowPass, x0: Array) -> Array:

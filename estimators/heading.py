@@ -28,6 +28,8 @@ from typing import Literal, TypeAlias
 import numpy as np
 from numpy.typing import NDArray
 
+from estimators.ball import fits_in_ball
+
 Array: TypeAlias = NDArray[np.float64]
 IndexArray: TypeAlias = NDArray[np.intp]
 _BOOL = np.dtype(np.bool_)
@@ -64,6 +66,7 @@ class HeadingParams:
     converged_interval_s: float = 5.0  # improved: update cadence once converged (drift predicted)
     lag_every: int = 5  # improved: re-estimate the latency every this many updates
     max_lag_s: float = 0.15  # search range ± for that latency
+    block_s: float = 4.0  # improved: residual blocks of the heteroscedastic refit; 0: off
 
     @classmethod
     def paper(cls) -> HeadingParams:
@@ -170,12 +173,9 @@ def residual_std(a: Array, b: Array, delta: float, span_s: float, params: Headin
 
 
 def motion_subwindows(w: Window, params: HeadingParams, t_end: float) -> int:
-    """Count sub-windows of the last ``window_s`` where the elbow leaves a sphere of
-    ``motion_diameter_m`` (§3.2.2).
-
-    The sphere test uses the largest distance from the sub-window's centroid, which is
-    within a few percent of the minimal enclosing sphere for arm-like paths.
-    """
+    """Count sub-windows of the last ``window_s`` with considerable motion (§3.2.2): the
+    elbow does not stay inside any sphere of ``motion_diameter_m`` diameter, i.e. its
+    smallest enclosing ball is larger (:func:`estimators.ball.fits_in_ball`)."""
     return _motion_subwindows(w.t, w.p, w.valid, _all_true(w.valid), params, t_end)
 
 
@@ -183,56 +183,29 @@ def _motion_subwindows(
     t: Array, pos: Array, valid: Array, all_valid: bool, params: HeadingParams, t_end: float
 ) -> int:
     """:func:`motion_subwindows` on the window's arrays (``all_valid`` from :func:`_all_true`).
-
-    The sub-windows' valid samples go side by side into one (k, m, 3) block padded with −0.0
-    (``x + (−0.0)`` is ``x`` for every x), so each numpy step runs once for all of them, and
-    sample-innermost. What sets the bits stays as it was: a centroid is the row-after-row
-    sum ``np.add.reduce(p_i, axis=0)`` (``.mean``) runs, which ``np.add.accumulate`` along
-    the samples ends on (``np.add.reduceat`` would add in another order), and ``einsum``
-    gives the squared distances (its per-row order is not ``x²+y²+z²``).
-    """
+    A sub-window with fewer than two valid samples shows no motion."""
     sub = params.window_s / params.n_subwindows
-    # t_end − window_s + sub·i as numpy's arange arithmetic computes it, in Python floats
     start = t_end - params.window_s
     idx = t.searchsorted([start + sub * i for i in range(params.n_subwindows + 1)], side="right")
-    lo, hi = int(idx[0]), int(idx[-1])
-    if all_valid:
-        p = pos[lo:hi]
-        bounds: list[int] = (idx - lo).tolist()
-    else:
-        v = valid[lo:hi]
-        p = pos[lo:hi][v]
-        csum = np.zeros(hi - lo + 1, dtype=np.intp)
-        np.cumsum(v, out=csum[1:])
-        bounds = csum[idx - lo].tolist()  # valid samples before each edge
-    spans = [(i0, i1) for i0, i1 in itertools.pairwise(bounds) if i1 - i0 >= 2]
-    if not spans:
-        return 0
-    sizes = [i1 - i0 for i0, i1 in spans]
-    k, m = len(spans), max(sizes)
-    block = np.full((k, m, 3), -0.0)
-    for i, (i0, i1) in enumerate(spans):
-        block[i, : i1 - i0] = p[i0:i1]
-    by_axis = block.transpose(2, 0, 1)  # (3, k, m) views, samples innermost
-    sums = np.add.accumulate(by_axis, axis=2)[:, :, -1]
-    centroids = sums / np.array(sizes, dtype=np.float64)  # (3, k), = .mean(axis=0)
-    q = np.empty_like(block)
-    np.subtract(by_axis, centroids[:, :, None], out=q.transpose(2, 0, 1), order="C")
-    for i, size in enumerate(sizes):
-        if size < m:
-            q[i, size:] = 0.0  # the padding spreads nothing
-    q2 = q.reshape(-1, 3)
-    d2 = np.einsum("ij,ij->i", q2, q2).reshape(k, m)
-    limit = 0.25 * params.motion_diameter_m * params.motion_diameter_m  # radius², m²
-    # the largest per sub-window (exact and NaN-propagating, like ndarray.max; the padding's
-    # zeros cannot exceed a largest squared distance)
-    return int(np.count_nonzero(np.maximum.reduce(d2, axis=1) > limit))
+    count = 0
+    for lo, hi in itertools.pairwise(idx.tolist()):
+        p = pos[lo:hi] if all_valid else pos[lo:hi][valid[lo:hi]]
+        if len(p) >= 2 and not fits_in_ball(p, params.motion_diameter_m):
+            count += 1
+    return count
 
 
 def _grid(center: float, half: float, step: float) -> Array:
     n = int(round(half / step))
     out: Array = center + np.radians(step) * np.arange(-n, n + 1)
     return out
+
+
+def _within_deg(diff: float, tol_deg: float) -> bool:
+    """``|diff| ≤ tol_deg`` for an angle difference ``diff`` (rad) of grid values: compared in
+    degrees to 1e-9°, so a change of exactly 5° on the 1° grid (5.000000000000001° after the
+    radian round trip) passes the paper's "at most 5°"."""
+    return round(abs(math.degrees(wrap(diff))), 9) <= tol_deg
 
 
 def update_paper(state: HeadingState, w: Window, params: HeadingParams, t: float) -> bool:
@@ -247,7 +220,9 @@ def update_paper(state: HeadingState, w: Window, params: HeadingParams, t: float
     ):
         return False
     sc, ss = sums(a, b)
-    if state.delta is None or (not state.converged and state.n_counted < params.n_two_step):
+    if state.delta is None or not state.converged:
+        # two-step update (eqs. 6–7) for the first five counted windows and every later one
+        # until convergence: the paper switches to the one-step grid only once converged
         coarse = np.radians(np.arange(0.0, 360.0, params.coarse_step_deg))
         d = optdelta(coarse, sc, ss)  # eq. 6
         d = optdelta(_grid(d, params.fine_halfwidth_deg, params.fine_step_deg), sc, ss)  # eq. 7
@@ -262,10 +237,13 @@ def update_paper(state: HeadingState, w: Window, params: HeadingParams, t: float
         residual_std(a, b, d, float(np.ptp(_rows(w.t, v, all_valid))), params),
         math.radians(params.fine_step_deg) / math.sqrt(12.0),
     )
-    if not state.converged and len(state.history) > params.converge_count:
+    # checked from the first window after the five two-step ones (§3.2.2)
+    if not state.converged and state.n_counted > params.n_two_step:
         last = state.history[-(params.converge_count + 1) :]
-        tol = math.radians(params.converge_tol_deg)
-        if all(abs(wrap(last[i + 1] - last[i])) <= tol for i in range(params.converge_count)):
+        if len(last) == params.converge_count + 1 and all(
+            _within_deg(last[i + 1] - last[i], params.converge_tol_deg)
+            for i in range(params.converge_count)
+        ):
             state.converged, state.t_converged = True, t
     return True
 
@@ -634,10 +612,19 @@ def update_improved(
         cl = _rows(w.cl, v, all_valid)
         jac = _jacobian(cl if delay is None else _delay_apply(cl, *delay))
     # the sensor errors need cl not all zero (as np.any(cl); a nonzero first sample answers)
-    if jac is not None and (bool(jac[:3].any()) or bool(jac.any())):
-        d0, rate, sd = _fit_with_sensor_errors(state, a, b, tau, jac, rate0, params)
-    else:
-        d0, rate, sd, _ = fit_drift(a, b, tau, rate0, params)
+    if jac is None or not jac.any():
+        jac = None
+    d0, rate, sd = _fit(state, a, b, tau, jac, rate0, params)
+    if params.block_s > 0:
+        # Heteroscedastic refit: stretches the model does not explain (above all the 6D
+        # filter's levelling transient while its gyro-bias estimate settles, whose leak of
+        # gravity grows with the bias) count with the weight their own residual gives them,
+        # instead of inflating the uncertainty of the whole window until they leave it.
+        sw = _block_weights(d0, rate, tau, a, b, jac, state, params.block_s)
+        if sw is not None:
+            a, b = a * sw[:, None], b * sw[:, None]
+            jac = None if jac is None else jac * np.repeat(sw, 3)[:, None]
+            d0, rate, sd = _fit(state, a, b, tau, jac, rate0, params)
     d = wrap(d0 + rate * lag_s)
     prev = predict(state, t)
     state.n_counted += 1
@@ -657,14 +644,59 @@ def update_improved(
     return True
 
 
+def _fit(
+    state: HeadingState,
+    a: Array,
+    b: Array,
+    tau: Array,
+    jac: Array | None,
+    rate0: float,
+    params: HeadingParams,
+) -> tuple[float, float, float]:
+    """The drift fit, with the sensor errors when ``jac`` is given: ``(δ0, ρ, std δ0)``."""
+    if jac is not None:
+        return _fit_with_sensor_errors(state, a, b, tau, jac, rate0, params)
+    d0, rate, sd, _ = fit_drift(a, b, tau, rate0, params)
+    return d0, rate, sd
+
+
+def _block_weights(
+    d0: float,
+    rate: float,
+    tau: Array,
+    a: Array,
+    b: Array,
+    jac: Array | None,
+    state: HeadingState,
+    block_s: float,
+) -> Array | None:
+    """Square roots of per-sample weights (n,) from the fit's horizontal residual in blocks of
+    ``block_s``: ``min(1, median / block's mean)`` of the blocks' mean squared residual, so a
+    block noisier than the typical one counts as its own noise warrants. None when every
+    weight is 1."""
+    r = _derotated_residual(d0, rate, tau, a, b)
+    if jac is not None:
+        x = np.concatenate((state.acc_bias, state.lever_error))
+        r -= (jac @ x).reshape(-1, 3)
+    e2 = r[:, 0] ** 2 + r[:, 1] ** 2
+    blk = ((tau - tau[0]) // block_s).astype(np.intp)
+    nb = int(blk[-1]) + 1
+    if nb < 3:
+        return None
+    count = np.bincount(blk, minlength=nb)
+    mean = np.bincount(blk, weights=e2, minlength=nb) / np.maximum(count, 1)
+    med = float(np.median(mean[count > 0]))
+    if not med > 0.0:
+        return None
+    w = np.minimum(1.0, med / np.maximum(mean, 1e-300))
+    if bool(np.all(w[count > 0] == 1.0)):
+        return None
+    out: Array = np.sqrt(w)[blk]
+    return out
+
+
 def predict(state: HeadingState, t: float) -> float | None:
     """Heading offset at time ``t`` (rad), with the drift prediction; None if never estimated."""
     if state.delta is None:
         return None
     return state.delta + state.rate * (t - state.t_update)
-
-
-def predict_std(state: HeadingState, t: float, params: HeadingParams) -> float:
-    """Uncertainty (rad) at ``t``: the update's, grown by an unmodelled drift of 0.1 °/s."""
-    dt = max(0.0, t - state.t_update)
-    return math.hypot(state.std, math.radians(0.1) * dt)

@@ -11,11 +11,6 @@ from numpy.typing import NDArray
 from scipy import sparse
 from vqf import VQF
 
-try:  # the compiled loop behind a CSR matrix's product with a dense matrix
-    from scipy.sparse._sparsetools import csr_matvecs
-except ImportError:  # pragma: no cover - a scipy that moved it: the public product
-    csr_matvecs = None
-
 from estimators import kinematics as kin
 from estimators import quaternion as quat
 from estimators import rows
@@ -95,6 +90,7 @@ class ImuStage:
         self._mw: list[float] = []
         self._mseg: list[float] = []
         self._mprev: tuple[float, tuple[float, ...], float] | None = None
+        self._rows_list: list[list[float]] | None = None  # the buffer as floats, when asked
 
     @property
     def t(self) -> Array:
@@ -242,6 +238,7 @@ class ImuStage:
             return
         n = len(self.tl) - len(self.buf)
         rows = self.buf.grow(n)
+        self._rows_list = None
         rows[:, self.T] = self.tl[len(self.tl) - n :]
         seg = self._p_seg
         if seg.count(seg[0]) == len(seg):  # one segment: no per-piece repeat
@@ -284,6 +281,7 @@ class ImuStage:
             if i > len(self.buf):
                 self._flush()
             self.buf.drop(i)
+            self._rows_list = None
             extra = len(self._mseg) - (len(self.tl) - i)
             if extra > 0:  # the mirror loses its oldest: the last of them is _mprev now
                 j = extra - 1
@@ -306,8 +304,12 @@ class ImuStage:
                 self._dw(k),
                 self._mseg[k],
             )
-        self._flush()
-        r: list[float] = self.buf.a[self.buf.lo + i].tolist()
+        rows = self._rows_list
+        if rows is None or i >= len(rows):
+            # many look-ups behind the mirror (an analysis's rows): the buffer as floats once
+            self._flush()
+            rows = self._rows_list = self.buf.view()[:, : self.WIDTH].tolist()
+        r = rows[i]
         return r[2:6], r[16:19], r[19:22], r[1]
 
     def _dw(self, k: int) -> list[float]:
@@ -369,18 +371,10 @@ class ImuStage:
         x = self.channels(s0 + base, s0 + int(lo.max()) + m)
         # the weighted sums as a sparse product: the same sequential sums as gathering
         # (ng, m, 15) windows and reducing them, without that array (26 MB for 8 minutes)
-        if csr_matvecs is None:
-            kernel = sparse.csr_matrix(
-                (w.ravel(), (idx - base).ravel(), np.arange(0, ng * m + 1, m)), shape=(ng, len(x))
-            )
-            acc = np.asarray(kernel @ x)
-        else:
-            # what that product runs (csr_matrix.__matmul__ → _matmul_multivector) without
-            # the constructor's checks and the operator's dispatch, which cost more here
-            acc = np.zeros((ng, 15))
-            np.subtract(idx, base, out=idx)
-            indptr = np.arange(0, ng * m + 1, m)
-            csr_matvecs(ng, len(x), 15, indptr, idx.ravel(), w.ravel(), x.ravel(), acc.ravel())
+        kernel = sparse.csr_matrix(
+            (w.ravel(), (idx - base).ravel(), np.arange(0, ng * m + 1, m)), shape=(ng, len(x))
+        )
+        acc = np.asarray(kernel @ x)
         with np.errstate(invalid="ignore", divide="ignore"):
             np.divide(acc, wsum[:, None], out=acc)
         return ok, acc
@@ -427,44 +421,11 @@ class ImuStage:
         w = np.clip((s - t[i0]) / (t[i1c] - t[i0]), 0.0, 1.0)
         return ok, i0, i1c, w
 
-    def interp(self, s: Array, asof: Array) -> tuple[Idx, tuple[Array, ...], Array]:
-        """Orientation q_IA (w, x, y, z columns) at times ``s`` (nlerp, :func:`rows.nlerp`);
-        ``ok`` where both neighbours exist in one segment; also the segment ids. Where
-        ``s > asof`` (the IMU had only reached ``asof`` when the row was decided), predicted
-        from the newest sample at or before ``asof`` (:func:`rows.predict`).
-        Bit-identical to :meth:`at` for each time."""
-        if len(self.tl) < 2:
-            nan = np.full(len(s), np.nan)
-            return np.zeros(len(s), bool), (nan, nan, nan, nan), np.zeros(len(s))
-        ok, i0, i1, w = self._bracket(s)
-        q = self.buf.cols(self.Q, self.Q + 4)
-        q0 = tuple(q[i0, j] for j in range(4))
-        q1 = tuple(q[i1, j] for j in range(4))
-        qs, seg = rows.nlerp(rows.VECTOR, q0, q1, w), self.segid[i1]
-        ahead = np.flatnonzero(s > asof)
-        if len(ahead):
-            t = np.ascontiguousarray(self.t)
-            j = np.searchsorted(t, asof[ahead], side="right") - 1
-            jc = np.maximum(j, 0)
-            wa = self.buf.cols(self.W, self.DW + 3)
-            qp = rows.predict(
-                rows.VECTOR,
-                tuple(q[jc, c] for c in range(4)),
-                tuple(wa[jc, c] for c in range(3)),
-                tuple(wa[jc, 3 + c] for c in range(3)),
-                s[ahead] - t[jc],
-            )
-            qs = tuple(a.copy() for a in qs)
-            for a, b in zip(qs, qp, strict=True):
-                a[ahead] = b
-            ok = ok.copy()
-            ok[ahead] = j >= 0
-            seg = seg.copy()
-            seg[ahead] = self.segid[jc]
-        return ok, qs, seg
-
     def at(self, s: float, asof: float) -> tuple[bool, tuple[float, ...], float]:
-        """:meth:`interp` for one time, with Python floats (a single row costs ~20× less)."""
+        """Orientation q_IA (w, x, y, z) at time ``s`` (nlerp, :func:`rows.nlerp`), whether
+        both neighbours exist in one segment, and the segment id. Where ``s > asof`` (the IMU
+        had only reached ``asof`` when the row was decided), predicted from the newest sample
+        at or before ``asof`` (:func:`rows.predict`)."""
         tl = self.tl
         n = len(tl)
         if n < 2:
@@ -474,7 +435,7 @@ class ImuStage:
             j = n - 1 if asof >= tl[-1] else bisect.bisect_right(tl, asof) - 1
             jc = j if j > 0 else 0
             q, w, dw, seg = self._sample(jc)
-            return j >= 0, rows.predict_scalar(q, w, dw, s - tl[jc]), seg
+            return j >= 0, rows.predict(q, w, dw, s - tl[jc]), seg
         i1 = bisect.bisect_left(tl, s)
         i1c = min(max(i1, 1), n - 1)
         i0 = i1c - 1
@@ -488,7 +449,7 @@ class ImuStage:
         t0 = tl[i0]
         a = (s - t0) / (tl[i1c] - t0)
         a = 0.0 if a < 0.0 else 1.0 if a > 1.0 else a  # as np.clip (NaN passes)
-        return 0 < i1 < n and seg0 == seg1, rows.nlerp_scalar(q0, q1, a), seg1
+        return 0 < i1 < n and seg0 == seg1, rows.nlerp(q0, q1, a), seg1
 
     def interp_channels(self, s: Array) -> tuple[Idx, Array]:
         """Fusion channels linearly interpolated at ``s`` (no anti-alias: the paper's way)."""

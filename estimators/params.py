@@ -50,8 +50,9 @@ class PipelineParams:
     mounting_quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)  # A in sensor frame
     vqf_tau_acc_s: float = 3.0  # 6D filter's accelerometer time constant (VQF's tauAcc)
     # elbow angle: "paired" (both at the robot's instant), "fresh" (IMU now, robot forearm as
-    # is) or "extrapolate" (forearm axis carried forward by the estimated latency)
-    elbow_angle_timing: Literal["paired", "fresh", "extrapolate"] = "fresh"
+    # is) or "extrapolate" (forearm axis carried forward by the estimated latency); None:
+    # "fresh" for the improved method, "paired" (the paper's eq. 11 at one instant) for the paper
+    elbow_angle_timing: Literal["paired", "fresh", "extrapolate"] | None = None
     # streams
     robot_time_offset_s: float = 0.0  # robot stamps are this late (latency)
     imu_max_bridge_s: float = 0.1  # IMU gaps up to this are interpolated; longer ones reset
@@ -60,12 +61,15 @@ class PipelineParams:
     # A robot sample the IMU has not reached yet, but is at most this far behind (s), is
     # computed at once with the upper arm predicted from the newest IMU sample by its gyro:
     # the row does not wait for the next IMU message (up to one message period, 40 ms for
-    # 4 samples at 100 Hz). 0: every row waits for the IMU.
-    imu_predict_s: float = 0.05
+    # 4 samples at 100 Hz). 0: every row waits for the IMU. None: 0.05 s for the improved
+    # method, 0 for the paper's.
+    imu_predict_s: float | None = None
     rate_probe_samples: int = 5
     # nominal shoulder and arm length
     auto_nominal_s: float = 2.0  # automatic nominal: mean estimate over this long after convergence
-    arm_length: Literal["fixed", "calibrate"] = "calibrate"
+    # "fixed": upper_arm_length_m as given (the paper); "calibrate": measured at the rope
+    # reference (improved). None: the method's own.
+    arm_length: Literal["fixed", "calibrate"] | None = None
     arm_reference_s: float = 0.5  # elbow averaged this long after a shoulder_reference
     arm_length_bounds_m: tuple[float, float] = (0.22, 0.40)
     # compensation rule
@@ -82,6 +86,24 @@ class PipelineParams:
     @property
     def use_antialias(self) -> bool:
         return self.antialias if self.antialias is not None else self.method != "paper"
+
+    @property
+    def arm_length_mode(self) -> Literal["fixed", "calibrate"]:
+        if self.arm_length is not None:
+            return self.arm_length
+        return "fixed" if self.method == "paper" else "calibrate"
+
+    @property
+    def angle_timing(self) -> Literal["paired", "fresh", "extrapolate"]:
+        if self.elbow_angle_timing is not None:
+            return self.elbow_angle_timing
+        return "paired" if self.method == "paper" else "fresh"
+
+    @property
+    def predict_s(self) -> float:
+        if self.imu_predict_s is not None:
+            return self.imu_predict_s
+        return 0.0 if self.method == "paper" else 0.05
 
     @property
     def heading_params(self) -> HeadingParams:
@@ -150,12 +172,16 @@ class PipelineParams:
             (0.0 <= self.max_outside_fraction <= 1.0, "max_outside_fraction in [0, 1]"),
             (self.displacement_norm in ("horizontal", "3d"), "displacement_norm horizontal|3d"),
             (self.method in ("paper", "improved"), "method paper|improved"),
-            (self.arm_length in ("fixed", "calibrate"), "arm_length fixed|calibrate"),
+            (self.arm_length in (None, "fixed", "calibrate"), "arm_length fixed|calibrate"),
+            (
+                self.elbow_angle_timing in (None, "paired", "fresh", "extrapolate"),
+                "elbow_angle_timing paired|fresh|extrapolate",
+            ),
             (self.cycle_mode in ("auto", "path", "events", "reach"), "cycle_mode"),
             (1.0 <= self.fusion_rate_hz <= 200.0, "fusion_rate_hz in [1, 200]"),
             (0 < self.lowpass_cutoff_hz < self.fusion_rate_hz / 2, "lowpass below Nyquist"),
             (self.rate_probe_samples >= 2, "rate_probe_samples >= 2"),
-            (0.0 <= self.imu_predict_s <= 0.2, "imu_predict_s in [0, 0.2]"),
+            (0.0 <= self.predict_s <= 0.2, "imu_predict_s in [0, 0.2]"),
         ]
         bad = [msg for ok, msg in checks if not ok]
         if bad:
@@ -165,6 +191,10 @@ class PipelineParams:
         out = dataclasses.asdict(self)
         out.pop("extra")
         out["heading"] = dataclasses.asdict(self.heading_params)
+        # what the method resolved its unset options to (the report says what ran)
+        out["arm_length"] = self.arm_length_mode
+        out["elbow_angle_timing"] = self.angle_timing
+        out["imu_predict_s"] = self.predict_s
         return out
 
 

@@ -30,9 +30,7 @@ from __future__ import annotations
 
 import bisect
 import math
-import struct
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any, TypeAlias
 
 import numpy as np
@@ -40,13 +38,14 @@ from numpy.typing import NDArray
 
 from estimators import heading as hd
 from estimators import rows
-from estimators.boundary import Boundary
 from estimators.buffers import RowQueue
-from estimators.compensation import ONE_CODE, CompensationParams, EpisodeTracker, Indicator
+from estimators.compensation import CompensationParams, EpisodeTracker, Indicator
 from estimators.cycles import CycleParams, CycleSegmenter
 from estimators.grid_stage import GridStage
+from estimators.heading_stage import HeadingStage
 from estimators.imu_stage import ImuStage
-from estimators.output import COL, NCOL, Output, Quality, RowTable
+from estimators.nominal import NominalStage
+from estimators.output import COL, NCOL, Output, Quality, RowTable, flatten_row
 from estimators.params import PipelineParams
 from estimators.robot_stage import RobotStage
 from estimators.verdicts import CycleJudge, CycleVerdict
@@ -55,33 +54,7 @@ Array: TypeAlias = NDArray[np.float64]
 Idx: TypeAlias = NDArray[Any]  # integer and boolean arrays
 
 
-# ------------------------------------------------------------------------------ inputs
-# The pipeline accepts any objects with these attributes (backend.wire's messages do).
-
-
-@dataclass(frozen=True, slots=True)
-class ImuSamples:
-    t: Array
-    gyr: Array
-    acc: Array
-    seq: int | None = None
-    segment: str = "upperarm"
-
-
-@dataclass(frozen=True, slots=True)
-class RobotSamples:
-    t: Array
-    wrist: Array
-    proximal: Array
-    elbow: Array | None = None
-    seq: int | None = None
-
-
-@dataclass(frozen=True, slots=True)
-class Event:
-    t: float
-    type: str
-    point: Array | None = None
+# The pipeline takes any message objects with backend.wire's attributes (duck-typed).
 
 
 class _Stream:
@@ -109,14 +82,6 @@ class _Stream:
         return True
 
 
-def _run_end(values: Sequence[int], i: int) -> int:
-    """End of the run of equal values starting at ``i``."""
-    v, j, n = values[i], i + 1, len(values)
-    while j < n and values[j] == v:
-        j += 1
-    return j
-
-
 # ------------------------------------------------------------------------------ pipeline
 
 
@@ -134,8 +99,8 @@ class Pipeline:
         self._grid = GridStage(p)
         # messages fed since the last poll
         self._imu_pending: list[tuple[Array, Array, Array, list[float] | None]] = []
-        # (t, wrist, proximal, elbow, the first three as float lists if at hand)
-        self._robot_pending: list[tuple[Array, Array, Array, Array | None, Any]] = []
+        # (t, wrist, proximal, elbow)
+        self._robot_pending: list[tuple[Array, Array, Array, Array | None]] = []
         # consecutive rows fed by feed_*_rows, not yet cut out as one pending piece:
         # [t, gyr, acc, i0, i1] and [t, wrist, proximal, elbow, i0, i1]
         self._imu_run: list[Any] | None = None
@@ -153,34 +118,8 @@ class Pipeline:
         self._n_done = 0
         self._rowq = RowQueue(9)  # wrist, p_E, x_C of the robot samples not yet emitted
         # heading
-        self._hstate = hd.HeadingState()
-        self._hseg = 0
-        self._t_update: float | None = None
-        # heading after each update: t, delta, rate, t_update, std, converged, imu segment,
-        # robot latency
-        self._snaps: list[tuple[float, ...]] = []
-        self._snap_t: list[float] = []
-        self.convergence_time: float | None = None
-        self.first_motion_time: float | None = None
-        # nominal shoulder: specs in feed order: ("point", t, xyz) or ("auto", t, None)
-        self._specs: list[tuple[str, float, Array | None]] = []
-        if p.nominal_shoulder_m is not None:
-            self._specs.append(
-                ("param", -math.inf, np.array(p.nominal_shoulder_m, dtype=np.float64))
-            )
-        else:
-            self._specs.append(("auto", -math.inf, None))
-        self._nom_spec = -1
-        self._nom_point: tuple[float, ...] | None = None
-        self._nom_acc: list[tuple[float, ...]] = []
-        self._nom_t0: float | None = None
-        self._ref_point: Array | None = None  # the last rope-measured point (for l_A)
-        self._arm_len = p.upper_arm_length_m
-        self._arm_spec = -1
-        self._arm_spec_done = -1
-        self._arm_pts: list[Array] = []
-        self._arm_free: set[int] = set()  # specs whose rows all use _arm_len as it is
-        self.arm_length_estimate: float | None = None
+        self._heading = HeadingStage(self.hp, self.quality)
+        self._nominal = NominalStage(p, self.quality)
         # compensation
         self._cp = CompensationParams(
             tolerance_m=p.tolerance_m,
@@ -313,7 +252,7 @@ class Pipeline:
                 return False
         if self._robot_run is not None:
             self._close_robot_run()
-        self._robot_pending.append((t, wrist, proximal, elbow, (tl, wl, pl)))
+        self._robot_pending.append((t, wrist, proximal, elbow))
         self._accept_robot(tl)
         return True
 
@@ -364,14 +303,14 @@ class Pipeline:
         if run is not None:
             t, wrist, prox, elbow, i0, i1 = run
             e = None if elbow is None else elbow[i0:i1]
-            self._robot_pending.append((t[i0:i1], wrist[i0:i1], prox[i0:i1], e, None))
+            self._robot_pending.append((t[i0:i1], wrist[i0:i1], prox[i0:i1], e))
             self._robot_run = None
 
     def feed_event(self, t: float, etype: str, point: Array | None = None) -> bool:
         if etype == "shoulder_reference" and point is not None:
-            self._specs.append(("point", t, np.asarray(point, dtype=np.float64)))
+            self._nominal.add_reference(t, point)
         elif etype == "nominal_reset":
-            self._specs.append(("auto", t, None))
+            self._nominal.add_reset(t)
         elif etype == "cycle_start":
             self._segmenter.add_event(t)
         else:
@@ -388,11 +327,11 @@ class Pipeline:
             return
         off = self.params.robot_time_offset_s
         wait = self.params.imu_wait_s
-        ahead = self.params.imu_predict_s
+        ahead = self.params.predict_s
         front = self._imu_frontier
         n = len(self._row_t)
         i = self._n_decided
-        spec = len(self._specs) - 1
+        nominal = self._nominal
         while i < n:
             tr = self._row_t[i]
             asof = math.inf
@@ -401,13 +340,29 @@ class Pipeline:
                 with_imu, asof = True, front
             elif not with_imu and self._robot_frontier < tr + wait:
                 break
-            # the latest nominal spec (in feed order) whose time has come
-            k = spec
-            while k > 0 and self._specs[k][1] > tr:
-                k -= 1
-            self._decisions.append((with_imu, k, asof))
+            self._decisions.append((with_imu, nominal.spec_for(tr), asof))
             i += 1
         self._n_decided = i
+
+    @property
+    def convergence_time(self) -> float | None:
+        """Time of the heading update that first declared convergence (s), None before."""
+        return self._heading.convergence_time
+
+    @property
+    def first_motion_time(self) -> float | None:
+        """Time of the first heading update whose window had enough motion (s)."""
+        return self._heading.first_motion_time
+
+    @property
+    def heading_state(self) -> hd.HeadingState:
+        """The heading estimator's current state (read it, do not change it)."""
+        return self._heading.state
+
+    @property
+    def arm_length_estimate(self) -> float | None:
+        """The upper-arm length measured at the rope reference (m), None if none was."""
+        return self._nominal.arm_length_estimate
 
     @property
     def rows_ready(self) -> bool:
@@ -417,16 +372,17 @@ class Pipeline:
     def status(self) -> dict[str, Any]:
         """What a dashboard shows beside the numbers: convergence and its progress, the
         heading's confidence, the estimated sensor errors, and the data quality."""
-        s = self._hstate
+        s = self._heading.state
         hp = self.hp
         if s.converged:
             progress = 1.0
         elif hp.method == "paper":
-            progress = min(s.n_counted / (hp.n_two_step + hp.converge_count), 0.99)
+            # the paper converges at the sixth counted window at the earliest (§3.2.2)
+            progress = min(s.n_counted / (hp.n_two_step + 1), 0.99)
         else:
             # motion seen so far (sub-windows) and the heading's certainty, whichever lags
             need = hp.min_motion_subwindows * hp.window_s / hp.n_subwindows
-            moved = 0.0 if self.first_motion_time is None else need
+            moved = 0.0 if self._heading.first_motion_time is None else need
             certainty = (
                 0.0
                 if not math.isfinite(s.std)
@@ -442,13 +398,13 @@ class Pipeline:
             "heading_confidence": 0.0 if std is None else 1.0 / (1.0 + (std / 3.0) ** 2),
             "heading_drift_dps": math.degrees(s.rate),
             "excitation_m_s2": s.excitation,
-            "first_motion_t": self.first_motion_time,
-            "converged_t": self.convergence_time,
+            "first_motion_t": self._heading.first_motion_time,
+            "converged_t": self._heading.convergence_time,
             "robot_latency_s": s.lag,
             "acc_bias_m_s2": s.acc_bias.tolist(),
             "lever_error_m": s.lever_error.tolist(),
-            "upper_arm_length_m": self._arm_len,
-            "upper_arm_length_measured": self.arm_length_estimate is not None,
+            "upper_arm_length_m": self._nominal.arm_len,
+            "upper_arm_length_measured": self._nominal.arm_length_estimate is not None,
             "quality": self.quality.as_dict(),
         }
 
@@ -476,7 +432,7 @@ class Pipeline:
         if self._robot_pending:
             pend_r, self._robot_pending = self._robot_pending, []
             if len(pend_r) == 1:
-                self._robot_samples(*pend_r[0][:4], off, pend_r[0][4])
+                self._robot_samples(*pend_r[0], off)
             else:  # one vectorised call (elementwise: the same numbers as one by one)
                 given = [c[3] for c in pend_r]
                 elbow = None
@@ -497,12 +453,13 @@ class Pipeline:
         # same numbers as sample by sample) once its output, which ends one grid step before
         # the last grid point, reaches the next update.
         dt = self._grid.dt
-        due = self._t_update is None or (
-            math.isfinite(until) and (math.floor(until / dt) - 1) * dt >= self._t_update
+        t_next = self._heading.t_next
+        due = t_next is None or (
+            math.isfinite(until) and (math.floor(until / dt) - 1) * dt >= t_next
         )
         if self._imu.ts is not None and due:
             self._grid.advance(self._imu, self._robot, until)
-            self._run_heading()
+            self._heading.run(self._grid)
         out = self._rows()
         # forgetting old data changes no result, so it is done every few seconds of data:
         # its cost is mostly per call (per poll it would cost as much as the row itself)
@@ -525,270 +482,113 @@ class Pipeline:
         out.extend(self.finish())
         return out
 
-    def _run_heading(self) -> None:
-        hp = self.hp
-        front = self._grid.frontier
-        if not math.isfinite(front):
-            return
-        if self._t_update is None:
-            step = hp.update_interval_s
-            self._t_update = (math.floor(self._grid.t[0] / step) + 1) * step
-        snaps: list[tuple[float, ...]] = []
-        while self._t_update <= front:
-            t_up = self._t_update
-            # updates on a fixed lattice of the sample clock; sparser once converged
-            step = hp.update_interval_s
-            if hp.method == "improved" and self._hstate.converged:
-                step = hp.converged_interval_s
-            self._t_update = (math.floor(t_up / step + 1e-9) + 1) * step
-            seg = int(
-                self._grid.seg[
-                    min(
-                        int(np.searchsorted(self._grid.t, t_up, side="right")) - 1,
-                        len(self._grid.seg) - 1,
-                    )
-                ]
-            )
-            if seg != self._hseg:
-                self._hstate = hd.HeadingState()
-                self._hseg = seg
-                self.quality.heading_resets += 1
-            span = hp.window_s if hp.method == "paper" else max(hp.window_s, hp.fit_window_s)
-            w = self._grid.window(t_up, span, seg)
-            if hp.method == "paper":
-                counted = hd.update_paper(self._hstate, w, hp, t_up)
-            else:
-                counted = hd.update_improved(self._hstate, w, hp, t_up, self._grid.lag)
-            if counted and self.first_motion_time is None:
-                self.first_motion_time = t_up
-            if self._hstate.converged and self.convergence_time is None:
-                self.convergence_time = t_up
-            s = self._hstate
-            d = math.nan if s.delta is None else s.delta
-            snaps.append(
-                (t_up, d, s.rate, s.t_update, s.std, float(s.converged), float(seg), s.lag)
-            )
-        self._snaps.extend(snaps)
-        self._snap_t.extend(s[0] for s in snaps)
-
     def _robot_samples(
-        self,
-        t: Array,
-        wrist: Array,
-        prox: Array,
-        elbow: Array | None,
-        off: float,
-        lists: tuple[list[float], list[list[float]], list[list[float]]] | None = None,
+        self, t: Array, wrist: Array, prox: Array, elbow: Array | None, off: float
     ) -> None:
         """Elbow and forearm axis from the cuffs (eq. 13), or the robot's own elbow."""
-        n = len(t)
         lp = self.params.cuff_to_elbow_m
-        if n <= _SMALL:
-            tl, wl, pl = lists or (t.tolist(), wrist.tolist(), prox.tolist())
-            el = None if elbow is None else elbow.tolist()
-            pes: list[tuple[float, ...]] = []
-            for j, (w, p) in enumerate(zip(wl, pl, strict=True)):
-                xc = rows.unit_scalar(w[0] - p[0], w[1] - p[1], w[2] - p[2])
-                pe = (p[0] - lp * xc[0], p[1] - lp * xc[1], p[2] - lp * xc[2])
-                if el is not None:
-                    pe = tuple(e if math.isfinite(e) else v for e, v in zip(el[j], pe, strict=True))
-                self._rowq.push((*w, *pe, *xc))
-                pes.append(pe)
-            self._robot.append([x - off for x in tl] if off else tl, pes, self.quality)
-            return
-        M = rows.VECTOR
-        xc_v = rows.unit(M, tuple(wrist[:, i] - prox[:, i] for i in range(3)))
-        pe_v = tuple(prox[:, i] - lp * xc_v[i] for i in range(3))
-        if elbow is not None:
-            pe_v = tuple(np.where(np.isfinite(elbow[:, i]), elbow[:, i], pe_v[i]) for i in range(3))
-        block = np.column_stack((wrist, *pe_v, *xc_v))
-        self._rowq.append(block)
-        self._robot.append((t - off).tolist(), block[:, 3:6], self.quality)
+        tl, wl, pl = t.tolist(), wrist.tolist(), prox.tolist()
+        el = None if elbow is None else elbow.tolist()
+        pes: list[tuple[float, ...]] = []
+        for j, (w, p) in enumerate(zip(wl, pl, strict=True)):
+            xc = rows.unit(w[0] - p[0], w[1] - p[1], w[2] - p[2])
+            pe = (p[0] - lp * xc[0], p[1] - lp * xc[1], p[2] - lp * xc[2])
+            if el is not None:
+                pe = tuple(e if math.isfinite(e) else v for e, v in zip(el[j], pe, strict=True))
+            self._rowq.push((*w, *pe, *xc))
+            pes.append(pe)
+        self._robot.append([x - off for x in tl] if off else tl, pes, self.quality)
 
     def _rows(self) -> Output:
-        """Rows of the robot samples decided since the last poll (eqs. 9–12, §3.4).
-
-        One row at a time in Python floats when few are due (the live case), as arrays
-        otherwise; :mod:`estimators.rows` makes both bit-identical."""
+        """Rows of the robot samples decided since the last poll (eqs. 9–12, §3.4), one at a
+        time: live polls bring one row, an analysis brings them all, through the same code."""
         lo, hi = self._n_done, self._n_decided
         if hi <= lo:
             return Output()
         self._n_done = hi
         n = hi - lo
-        if n == 1:
-            return self._one_row(lo)
-        t = self._row_t[lo:hi]
-        dec = self._decisions[lo:hi]
-        # compensation rule (§3.4); segment first: a completed cycle sets the tolerated
-        # duration from its end on
-        boundaries: list[Boundary]
-        tt: Any
-        disp: Any
-        if n <= _SMALL:
-            flat: list[float] = []
-            boundaries, disp = [], []
-            seg = self._segmenter
-            for tj, dj, rj in zip(t, dec, self._rowq.take_rows(n), strict=True):
-                row = self._row(tj, dj, rj)
-                flat.extend(row)
-                disp.append(row[_DISP])
-                boundaries.extend(seg.push(tj, rj[0], rj[1]))
-            tt = t
-            m = np.fromiter(flat, np.float64, len(flat)).reshape(n, NCOL)
-        else:
-            block = self._rowq.take_block(n)
-            with np.errstate(invalid="ignore", divide="ignore"):  # NaN where no estimate
-                m = self._rows_vector(np.array(t), dec, block)
-            tt, disp = m[:, 0], m[:, _DISP]
-            boundaries = self._segmenter.update(tt, block[:, 0:3])
-        codes, changes = self._indicator.update(tt, disp, None, boundaries)
-        verdicts = self._judge.update(tt, codes, boundaries, disp)
-        episodes = self._episodes.update(tt, codes, disp)
-        return Output(RowTable(m, codes), _feedback(changes, verdicts), verdicts, episodes)
-
-    def _one_row(self, i: int) -> Output:
-        """:meth:`_rows` of the one row ``i`` (the live case): each stage's single-sample
-        entry, floats only up to the row's matrix."""
-        t = self._row_t[i]
-        r = self._rowq.take_row()
-        row = self._row(t, self._decisions[i], r)
-        d = row[_DISP]
-        boundaries = self._segmenter.push(t, r[0], r[1])
+        flat: list[float] = []
+        codes: list[int] = []
         changes: list[tuple[float, str]] = []
-        code = self._indicator.push(t, d, boundaries, changes)
-        verdicts = self._judge.push(t, code, d, boundaries)
-        episodes = self._episodes.push(t, code, d)
-        # packed in one call and read in place (about half np.fromiter's cost); bytes, unlike
-        # an array.array's buffer, are not tracked by the cyclic collector while rows live
-        m = np.frombuffer(_PACK_ROW(*row), _ROW_DTYPE)  # (1, NCOL), read-only as the table
-        return Output(
-            RowTable(m, ONE_CODE[code]),  # shared: read-only, as the table is
-            _feedback(changes, verdicts) if changes or verdicts else [],
-            verdicts,
-            episodes,
-        )
+        verdicts: list[CycleVerdict] = []
+        episodes: list[Any] = []
+        seg, ind, judge, eps = self._segmenter, self._indicator, self._judge, self._episodes
+        for t, dec, r in zip(
+            self._row_t[lo:hi], self._decisions[lo:hi], self._rowq.take_rows(n), strict=True
+        ):
+            row = self._row(t, dec, r)
+            flat += row
+            d = row[_DISP]
+            # compensation rule (§3.4); segment first: a completed cycle sets the tolerated
+            # duration from its end on
+            boundaries = seg.push(t, r[0], r[1])
+            code = ind.push(t, d, boundaries, changes)
+            codes.append(code)
+            verdicts += judge.push(t, code, d, boundaries)
+            episodes += eps.push(t, code, d)
+        m = np.fromiter(flat, np.float64, len(flat)).reshape(n, NCOL)
+        table = RowTable(m, np.array(codes, dtype=np.int8))
+        fb = _feedback(changes, verdicts) if changes or verdicts else []
+        return Output(table, fb, verdicts, episodes)
 
     def _row(self, t: float, dec: tuple[bool, int, float], r: Sequence[float]) -> list[float]:
-        """One row in Python floats, in :data:`estimators.output.LAYOUT` order (state filled in
-        later)."""
+        """One row in Python floats, by column name (:data:`estimators.output.ROW_COLUMNS`),
+        flattened in the matrix's order (the state is filled in later)."""
         p = self.params
         with_imu, k, asof = dec
         s = t - p.robot_time_offset_s
         # the heading updates the grid had surely produced when the row was decided
-        i = bisect.bisect_right(self._snap_t, min(s, asof) - self._snap_lag) - 1
-        snap = self._snaps[i] if i >= 0 else NAN8
+        snap = self._heading.snapshot(min(s, asof) - self._snap_lag)
         lat = snap[7]
         latency = (lat if lat >= 0.0 else 0.0) if math.isfinite(lat) else 0.0  # M.maximum
-        ok_p, q_p, seg_p = self._imu.at(s - latency, asof)
         ok_n, q_n, seg_n = self._imu.at(s, asof)
+        ok_p, q_p, seg_p = (ok_n, q_n, seg_n) if latency == 0.0 else self._imu.at(s - latency, asof)
         ok = ok_p and with_imu and ok_n and seg_n == seg_p
-        (_, h_std, h_conf, h_offset, h_good), q_ra, x_now, x_a = rows.heading_arm_scalar(
+        (_, h_std, h_conf, h_offset, h_good), q_ra, x_now, x_a = rows.heading_arm(
             s, ok, snap, seg_p, q_n, q_p
         )
         wrist, p_e, x_c = r[0:3], r[3:6], r[6:9]
         prev_t, prev = self._xc_prev_t, self._xc_prev
         self._xc_prev_t, self._xc_prev = t, x_c
-        la = self._arm_len if k in self._arm_free else self._arm_length(t, p_e, k)
+        la = self._nominal.arm_length(t, p_e, k)
         sh = rows.shoulder(p_e, x_a, la)
-        nom = self._nominal_at(t, sh, h_good, k)
-        angle, disp, conv, elev, azim = rows.angles_scalar(
-            x_now, x_c, p_e, sh, nom, p.displacement_norm
-        )
-        if p.elbow_angle_timing != "fresh":
-            angle = self._angle(rows.SCALAR, x_now, x_a, x_c, prev, t - prev_t, latency)
+        nom = self._nominal.nominal_at(t, sh, h_good, k)
+        angle, disp, conv, elev, azim = rows.angles(x_now, x_c, p_e, sh, nom, p.displacement_norm)
+        if p.angle_timing != "fresh":
+            angle = self._angle(x_now, x_a, x_c, prev, t - prev_t, latency)
         if not with_imu:
             self.quality.rows_without_imu += 1
-        good = 1.0 if h_good else 0.0
-        return [
-            t, *p_e, *sh, angle, h_offset, good, disp, math.nan, *q_ra, h_std,
-            h_conf, elev, azim, *nom, conv, *wrist, la,
-        ]  # fmt: skip
-
-    def _rows_vector(self, t: Array, dec: list[tuple[bool, int, float]], block: Array) -> Array:
-        """:meth:`_row` for many rows at once, as arrays: (n, ``NCOL``)."""
-        M = rows.VECTOR
-        p = self.params
-        n = len(t)
-        s = t - p.robot_time_offset_s
-        imu_l, spec_t, asof_l = zip(*dec, strict=True)
-        with_imu = np.array(imu_l, dtype=bool)
-        spec = list(spec_t)
-        asof = np.array(asof_l)
-        if self._snaps:
-            si = (
-                np.searchsorted(
-                    np.array(self._snap_t), np.minimum(s, asof) - self._snap_lag, side="right"
-                )
-                - 1
-            )
-            sn = np.array(self._snaps)[np.maximum(si, 0)]
-            sn[si < 0] = np.nan
-        else:
-            sn = np.full((n, 8), np.nan)
-        snap = tuple(sn[:, j] for j in range(8))
-        latency = np.where(np.isfinite(sn[:, 7]), np.maximum(sn[:, 7], 0.0), 0.0)
-        ok_p, q_p, seg_p = self._imu.interp(s - latency, asof)
-        ok_n, q_n, seg_n = self._imu.interp(s, asof)
-        ok = ok_p & with_imu & ok_n & (seg_n == seg_p)
-        h = rows.heading(M, s, ok, snap, seg_p)
-        q_ra, x_now, x_a = rows.upper_arm(M, h.delta, h.good, q_n, q_p)
-        wrist = block[:, 0:3]
-        p_e = tuple(block[:, 3 + i] for i in range(3))
-        x_c = tuple(block[:, 6 + i] for i in range(3))
-        prev_t = np.concatenate(([self._xc_prev_t], t[:-1]))
-        prev = tuple(np.concatenate(([self._xc_prev[i]], x_c[i][:-1])) for i in range(3))
-        self._xc_prev_t, self._xc_prev = float(t[-1]), tuple(float(c[-1]) for c in x_c)
-        angle = self._angle(M, x_now, x_a, x_c, prev, t - prev_t, latency)
-        tl = t.tolist()
-        pe_rows = block[:, 3:6].tolist()
-        # per row as in _row, but a run of rows whose value can no longer change is filled
-        # at once (an analysis has ~10^4 rows and one or two nominal specs)
-        la = np.empty(n)
-        i = 0
-        while i < n:
-            k = spec[i]
-            if self._arm_length_fixed(k):
-                j = _run_end(spec, i)
-                la[i:j] = self._arm_len
-                i = j
-            else:
-                la[i] = self._arm_length(tl[i], pe_rows[i], k)
-                i += 1
-        sh = rows.shoulder(p_e, x_a, la)
-        sh_rows = np.column_stack(sh).tolist()
-        good = h.good.tolist()
-        nom_a = np.empty((n, 3))
-        i = 0
-        while i < n:
-            k = spec[i]
-            nom_a[i] = self._nominal_at(tl[i], tuple(sh_rows[i]), good[i], k)
-            i += 1
-            if self._nom_point is not None:  # set for the rest of this spec's rows
-                j = _run_end(spec, i - 1)
-                nom_a[i:j] = self._nom_point
-                i = j
-        nom = tuple(nom_a[:, i] for i in range(3))
-        disp = rows.displacement(M, sh, nom, p.displacement_norm)
-        conv = rows.conventional_angle(M, p_e, nom, x_c)
-        elev, azim = rows.elevation_azimuth(M, x_now)
-        self.quality.rows_without_imu += int(np.count_nonzero(~with_imu))
-        return np.column_stack(
-            (
-                t, *p_e, *sh, angle, h.offset_deg, h.good, disp, np.full(n, np.nan), *q_ra,
-                h.std_deg, h.confidence, elev, azim, *nom, conv, wrist, la,
-            )
-        )  # fmt: skip
+        return flatten_row(
+            {
+                "t": t,
+                "elbow": p_e,
+                "shoulder": sh,
+                "elbow_angle_deg": angle,
+                "heading_offset_deg": h_offset,
+                "heading_converged": 1.0 if h_good else 0.0,
+                "shoulder_displacement_m": disp,
+                "state": math.nan,  # the indicator's code, set from the codes column
+                "q_ra": q_ra,
+                "heading_std_deg": h_std,
+                "heading_confidence": h_conf,
+                "upper_arm_elevation_deg": elev,
+                "upper_arm_azimuth_deg": azim,
+                "nominal_shoulder": nom,
+                "conv_elbow_angle_deg": conv,
+                "wrist": wrist,
+                "upper_arm_length_m": la,
+            }
+        )
 
     def _angle(
         self,
-        M: Any,
-        x_now: Sequence[Any],
-        x_pair: Sequence[Any],
-        x_c: Sequence[Any],
-        prev: Sequence[Any],
-        dt: Any,
-        latency: Any,
-    ) -> Any:
+        x_now: Sequence[float],
+        x_pair: Sequence[float],
+        x_c: Sequence[float],
+        prev: Sequence[float],
+        dt: float,
+        latency: float,
+    ) -> float:
         """Elbow angle (eq. 11) at the row's time.
 
         The robot's forearm axis is ``latency`` old while the IMU's upper-arm axis is fresh;
@@ -796,77 +596,12 @@ class Pipeline:
         ``dt`` earlier) so both segments describe the same instant; ``fresh`` pairs them as
         they are; ``paired`` uses the upper arm at the robot's instant.
         """
-        mode = self.params.elbow_angle_timing
+        mode = self.params.angle_timing
         if mode == "paired":
-            return rows.angle_deg(M, x_pair, x_c)
+            return rows.angle_deg(x_pair, x_c)
         if mode == "extrapolate":
-            x_c = rows.extrapolate(M, x_c, prev, dt, latency)
-        return rows.angle_deg(M, x_now, x_c)
-
-    def _arm_length_fixed(self, k: int) -> bool:
-        """Whether :meth:`_arm_length` returns ``_arm_len`` for every row of spec ``k`` from
-        here on, whatever the row."""
-        kind, _, point = self._specs[k]
-        if self.params.arm_length != "calibrate" or kind != "point" or point is None:
-            self._arm_free.add(k)  # for good: a spec's kind and point never change
-            return True
-        return k == self._arm_spec_done
-
-    def _arm_length(self, t: float, p_e: Sequence[float], k: int) -> float:
-        """Upper-arm length at a row: the parameter, or measured at the rope reference.
-
-        While the therapist holds the rope end on the shoulder (``shoulder_reference``), the
-        shoulder is at ``p_ref`` and the robot measures the elbow, so ``l_A = |p_E − p_ref|``
-        (mean elbow over ``arm_reference_s`` after the event). This removes the constant
-        offset an assumed length leaves in every shoulder estimate (eq. 12), without
-        needing the heading. Out-of-bounds or moving-arm measurements are ignored.
-        """
-        if self._arm_length_fixed(k):
-            return self._arm_len
-        p = self.params
-        _, t_e, point = self._specs[k]
-        if self._arm_spec != k:
-            self._arm_spec, self._arm_pts = k, []
-        if t <= t_e + p.arm_reference_s:
-            self._arm_pts.append(np.array(p_e))
-            return self._arm_len
-        self._arm_spec_done = k
-        # its later rows take _arm_len as it is now: later specs' rows come after them all
-        # (a row's spec is the newest whose time has come), so a new measurement misses them
-        self._arm_free.add(k)
-        pts = np.array(self._arm_pts)
-        self._arm_pts = []
-        if len(pts) >= 3 and float(np.max(np.std(pts, axis=0))) < 0.01:
-            length = float(np.linalg.norm(pts.mean(axis=0) - point))
-            lo_b, hi_b = p.arm_length_bounds_m
-            if lo_b <= length <= hi_b:
-                self._arm_len = length
-                self.arm_length_estimate = length
-                return length
-        self.quality.reject("arm_reference_unusable")
-        return self._arm_len
-
-    def _nominal_at(
-        self, t: float, shoulder: tuple[float, ...], good: bool, k: int
-    ) -> tuple[float, ...]:
-        """Nominal shoulder at a row (contract §4): parameter, rope reference, or automatic
-        (mean estimate over ``auto_nominal_s`` after convergence / after a reset event)."""
-        if k != self._nom_spec:
-            self._nom_spec = k
-            kind, _, point = self._specs[k]
-            self._nom_point = None if point is None else tuple(point.tolist())
-            self._nom_acc, self._nom_t0 = [], None
-            if point is not None and kind == "point":
-                self._ref_point = point
-        if self._nom_point is None and good:
-            if self._nom_t0 is None:
-                self._nom_t0 = t
-            self._nom_acc.append(shoulder)
-            if t - self._nom_t0 >= self.params.auto_nominal_s:
-                m = len(self._nom_acc)
-                self._nom_point = tuple(math.fsum(c) / m for c in zip(*self._nom_acc, strict=True))
-                self._nom_acc = []
-        return NAN3 if self._nom_point is None else self._nom_point
+            x_c = rows.extrapolate(x_c, prev, dt, latency)
+        return rows.angle_deg(x_now, x_c)
 
     def _trim(self) -> None:
         # keep what the next rows, grid points and heading windows can still need
@@ -880,13 +615,9 @@ class Pipeline:
             self._robot.trim(keep)
         if self._grid_trimmed != self._grid.frontier:
             self._grid_trimmed = self._grid.frontier
-            self._grid.trim(self._grid.frontier - max(self.hp.window_s, self.hp.fit_window_s) - 1.0)
+            self._grid.trim(self._grid.frontier - self._heading.span_s - 1.0)
         if self._n_done < len(self._row_t):
-            s_next = self._row_t[self._n_done] - off
-            cut = bisect.bisect_right(self._snap_t, s_next - 1.0) - 2
-            if cut > 0:
-                del self._snaps[:cut]
-                del self._snap_t[:cut]
+            self._heading.trim(self._row_t[self._n_done] - off - 1.0)
         # forget rows already emitted (indices stay consistent through the offset); soon:
         # in a service, long lists are what the garbage collector's full passes walk
         if self._n_done > 256:
@@ -932,11 +663,5 @@ def _kind_of(msg: Any) -> str:
 
 
 _COINCIDENT_M2 = 1e-12  # squared cuff distance, m², below which the cuffs coincide
-_SMALL = 16  # up to this many rows or samples per call take the Python-float path
 _TRIM_EVERY_S = 2.0  # s of robot data between two trims (1 s: +2 % CPU; 5 s: +10 % memory)
-NAN3 = (math.nan,) * 3
-NAN8 = (math.nan,) * 8
 _DISP = COL["shoulder_displacement_m"]
-_PACK_ROW = struct.Struct(f"{NCOL}d").pack  # one row's floats as the matrix's bytes
-# a buffer of one row read as (1, NCOL) float64 (a sub-array dtype, typed as its base)
-_ROW_DTYPE: np.dtype[np.float64] = np.dtype((np.float64, (NCOL,)))  # type: ignore[assignment]

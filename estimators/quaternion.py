@@ -25,16 +25,6 @@ def mul(a: Array, b: Array) -> Array:
     return out
 
 
-def x_axis(q: Array) -> Array:
-    """The image of the x axis under ``q`` (..., 4) → (..., 3): the first matrix column."""
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    out = np.empty((*q.shape[:-1], 3))
-    out[..., 0] = 1.0 - 2.0 * (y * y + z * z)
-    out[..., 1] = 2.0 * (x * y + w * z)
-    out[..., 2] = 2.0 * (x * z - w * y)
-    return out
-
-
 def conj(q: Array) -> Array:
     out: Array = q * np.array([1.0, -1.0, -1.0, -1.0])
     return out

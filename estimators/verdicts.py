@@ -25,8 +25,7 @@ from numpy.typing import ArrayLike
 from estimators.buffers import RowBuffer
 from estimators.compensation import CompensationParams, FloatArray
 
-_SMALL = 16  # list inputs up to this many rows take the Python-float path
-_FLUSH = 256  # ... whose rows reach the numpy buffer this many at a time (or to be judged)
+_FLUSH = 256  # rows reach the numpy buffer this many at a time (or to be judged)
 
 
 @dataclass(frozen=True, slots=True)
@@ -103,51 +102,27 @@ class CycleJudge:
         boundaries: Sequence[SupportsFloat] = (),
         displacement: ArrayLike | None = None,
     ) -> list[CycleVerdict]:
-        if isinstance(t, list) and len(t) <= _SMALL:
-            # the live case: a row or a few as floats (numpy's per-call cost would dominate)
-            n = len(t)
-            cl: list[float] = (
-                codes if isinstance(codes, np.ndarray) else np.asarray(codes)
-            ).tolist()
-            dl: list[float]
-            if displacement is None:
-                dl = [math.nan] * n
-            elif isinstance(displacement, list):
-                dl = displacement
-            else:
-                dl = np.asarray(displacement).tolist()
-            if len(cl) != n or len(dl) != n:
-                raise ValueError("t, codes and displacement must have shape (N,)")
-            col_t, col_c, col_d = self._cols
-            col_t.extend(t)
-            col_c.extend(cl)
-            col_d.extend(dl)
-            if n:
-                self._data_t = float(t[-1])
-            for b in boundaries:
-                self._add_boundary(b)
-            if (self._pending and self._pending[0][1] <= self._data_t) or len(col_t) >= _FLUSH:
-                return self._after_rows()
-            return []
-        tt = np.asarray(t, dtype=np.float64)
-        n = tt.shape[0]
-        cc = np.asarray(codes)
-        if tt.ndim != 1 or cc.shape != (n,):
-            raise ValueError("t and codes must both have shape (N,)")
+        tl: list[float] = np.asarray(t, dtype=np.float64).tolist()
+        n = len(tl)
+        cl: list[float] = np.asarray(codes, dtype=np.float64).tolist()
+        dl: list[float] = (
+            [math.nan] * n
+            if displacement is None
+            else np.asarray(displacement, dtype=np.float64).tolist()
+        )
+        if len(cl) != n or len(dl) != n:
+            raise ValueError("t, codes and displacement must have shape (N,)")
+        col_t, col_c, col_d = self._cols
+        col_t.extend(tl)
+        col_c.extend(cl)
+        col_d.extend(dl)
+        if n:
+            self._data_t = tl[-1]
         for b in boundaries:
             self._add_boundary(b)
-        if n:
-            self._flush()
-            rows = np.empty((n, 3))
-            rows[:, 0] = tt
-            rows[:, 1] = cc
-            if displacement is None:
-                rows[:, 2] = math.nan
-            else:
-                rows[:, 2] = np.asarray(displacement, dtype=np.float64)
-            self._buf.append(rows)
-            self._data_t = float(tt[-1])
-        return self._after_rows()
+        if (self._pending and self._pending[0][1] <= self._data_t) or len(col_t) >= _FLUSH:
+            return self._after_rows()
+        return []
 
     def push(
         self, t: float, code: int, displacement: float, boundaries: Sequence[SupportsFloat]

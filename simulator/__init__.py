@@ -10,6 +10,8 @@ messages and the ground truth.
     sim.messages, sim.truth, sim.subject
 """
 
+from typing import TYPE_CHECKING, Any
+
 from simulator.config import (
     COMPENSATORY,
     DEFAULT_LAYOUT_480,
@@ -19,9 +21,11 @@ from simulator.config import (
     SimConfig,
     default_layout,
 )
-from simulator.session import Simulation, simulate
 from simulator.subject import Subject, draw_subject
 from simulator.truth import Cycles, Truth
+
+if TYPE_CHECKING:
+    from simulator.session import Simulation, simulate
 
 __all__ = [
     "COMPENSATORY",
@@ -38,3 +42,13 @@ __all__ = [
     "draw_subject",
     "simulate",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    # the simulation itself (and SciPy with it) loads on first use: `rehab analyze` and the
+    # service import this package only for its configuration
+    if name in ("Simulation", "simulate"):
+        from simulator import session
+
+        return getattr(session, name)
+    raise AttributeError(f"module 'simulator' has no attribute {name!r}")

@@ -15,7 +15,6 @@ from typing import Any
 
 from backend import recording
 from simulator.config import SimConfig
-from simulator.session import simulate
 
 RECORDING_NAME = "recording.jsonl.gz"
 TRUTH_NAME = "truth.npz"
@@ -110,6 +109,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"simulate: {exc}", file=sys.stderr)
         return 2
     start = time.perf_counter()
+    from simulator.session import simulate  # SciPy and the arm model: only when simulating
+
     sim = simulate(cfg, progress=True)
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)

@@ -80,6 +80,7 @@ class SimConfig:
     gyro_noise_rad_s: float = 0.005  # white noise rms per axis at 100 Hz (scales with √rate)
     acc_noise_m_s2: float = 0.03  # white noise rms per axis at 100 Hz (scales with √rate)
     gyro_bias_walk_dps: float = 0.002  # bias random walk, °/s per √s
+    gyro_bias_scale: float = 1.0  # the drawn subject's gyro bias times this (fast drift: 2.5)
     robot_noise_m: float = 0.0015  # white noise per axis per cuff
     # error switches
     ideal: bool = False

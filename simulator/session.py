@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, TypeAlias
 
 import numpy as np
@@ -143,6 +143,9 @@ def simulate(config: SimConfig | None = None, *, progress: bool = False) -> Simu
     # Independent streams: switching an error off never changes the others' draws.
     rng_subject, rng_traj, rng_imu, rng_robot = (np.random.default_rng(s) for s in seeds)
     drawn = cfg.subject if cfg.subject is not None else draw_subject(rng_subject)
+    if cfg.gyro_bias_scale != 1.0:
+        bx, by, bz = (cfg.gyro_bias_scale * b for b in drawn.gyro_bias_dps)
+        drawn = replace(drawn, gyro_bias_dps=(bx, by, bz))
     subject = without(drawn, **cfg.switches())
     spans = cfg.spans()
     duration = cfg.duration_s

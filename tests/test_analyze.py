@@ -39,6 +39,25 @@ def test_analyze_writes_the_contract_files(rec: Path, short_session: Session, ca
     assert "estimates" in capsys.readouterr().out
 
 
+def test_analyze_many_recordings_in_parallel(rec: Path, tmp_path: Path, capsys) -> None:
+    """Several recordings with --jobs: DIR/<name>/ each, the same files as one by one; a
+    missing recording is refused before any work."""
+    src = rec / "recording.jsonl.gz"
+    a, b = tmp_path / "s1.jsonl.gz", tmp_path / "s2.jsonl.gz"
+    a.write_bytes(src.read_bytes())
+    b.write_bytes(src.read_bytes())
+    main(["analyze", str(src), "--out", str(tmp_path / "one")])
+    assert main(["analyze", str(a), str(b), "--out", str(tmp_path / "many"), "--jobs", "2"]) == 0
+    for name in ("s1", "s2"):
+        for f in ("estimates.csv", "details.csv"):
+            assert (tmp_path / "many" / name / f).read_bytes() == (
+                tmp_path / "one" / f
+            ).read_bytes()
+    assert capsys.readouterr().out.count("estimates") == 3
+    assert main(["analyze", str(a), str(tmp_path / "no.jsonl"), "--out", str(tmp_path / "x")]) == 2
+    assert not (tmp_path / "x").exists()
+
+
 def test_analyze_is_deterministic(rec: Path) -> None:
     main(["analyze", str(rec / "recording.jsonl.gz"), "--out", str(rec / "a")])
     main(["analyze", str(rec / "recording.jsonl.gz"), "--out", str(rec / "b")])

@@ -143,11 +143,6 @@ async def store_nominal_shoulder(
         raise NotFound(f"session {session_id} does not exist")
 
 
-async def set_recording_path(db: AsyncSession, session_id: int, path: str) -> None:
-    """``path`` relative to data_dir, so the data directory can move as a whole."""
-    await db.execute(update(Session).where(Session.id == session_id).values(recording_path=path))
-
-
 async def record_cycle(
     db: AsyncSession,
     session_id: int,

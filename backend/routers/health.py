@@ -8,7 +8,6 @@ from typing import Literal
 from fastapi import APIRouter
 from sqlalchemy import text
 
-import estimators
 from backend.deps import DB
 from backend.schemas.health import HealthOut
 
@@ -19,8 +18,8 @@ try:
 except PackageNotFoundError:  # running from a source tree that was never installed
     _VERSION = "0+unknown"
 
-# fixed at import: the compiled build is chosen when the estimators package loads
-_ESTIMATORS: Literal["compiled", "interpreted"] = "compiled" if estimators.NATIVE else "interpreted"
+# the estimators run interpreted (a field kept for clients that read it)
+_ESTIMATORS: Literal["interpreted"] = "interpreted"
 
 
 @router.get("/health")

@@ -9,5 +9,5 @@ class HealthOut(BaseModel):
     status: Literal["ok", "degraded"]
     version: str
     database: Literal["ok", "unreachable"]
-    # the live path's estimators: compiled with mypyc at set-up, or interpreted (same numbers)
-    estimators: Literal["compiled", "interpreted"]
+    # how the estimators run: always interpreted (the optional compiled build is gone)
+    estimators: Literal["interpreted"]

@@ -1,10 +1,9 @@
 """The IMU stage (:mod:`estimators.imu_stage`): however its samples are split into pieces,
-it holds the same numbers, and a single-time look-up equals the array path bit for bit."""
+it holds the same numbers; its orientation look-up."""
 
 from __future__ import annotations
 
 import math
-import struct
 
 import numpy as np
 import pytest
@@ -81,38 +80,25 @@ def test_any_split_into_pieces_holds_the_same_numbers(
     assert _bits(one.channels(0, n)) == _bits(many.channels(0, n))
 
 
-@settings(
-    max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
-)
-@given(
-    s=st.floats(-0.5, 31.0),
-    asof=st.one_of(
-        st.none(),  # the IMU has reached the row
-        st.floats(-0.5, 31.0),
-        # a segment's first samples (after the long gap), the first after the trim, the
-        # bridged gap's ends, the newest few
-        st.sampled_from([21.0, 21.005, 21.01, 15.0, 15.005, 10.0, 10.05, 29.98, 29.99]),
-    ),
-    piece=st.sampled_from([4, 13]),
-    # (21.02 keeps the segment's first sample as the oldest: the mirror starts there)
-    trim=st.sampled_from([None, 15.0, 21.02]),
-)
-def test_single_time_lookup_equals_the_array_path(
-    imu: Arrays, s: float, asof: float | None, piece: int, trim: float | None
-) -> None:
-    """``at`` (Python floats, the newest samples from the float mirror, dω worked out there
-    when a prediction needs it) against ``interp`` (arrays from the buffer), inside a
-    segment, across the gaps, before and after the data, and predicted past ``asof``.
-    Pieces of 4 are the live case; 13 leaves only the mirror's newest."""
-    t = imu[0]
-    stage, _ = _fed(imu, list(range(piece, len(t), piece)))
-    if trim is not None:
-        stage.trim(trim)
-        if trim == 21.02:
-            assert stage.tl[0] == 21.0  # the case's premise
-    a = math.inf if asof is None else asof
-    ok, q, seg = stage.at(s, a)
-    oka, qa, sega = stage.interp(np.array([s]), np.array([a]))
-    assert ok == bool(oka[0])
-    assert seg == float(sega[0])
-    assert struct.pack("4d", *q) == struct.pack("4d", *(float(c[0]) for c in qa))
+def test_lookup_at_and_between_samples(imu: Arrays) -> None:
+    """``at``: a sample's own orientation at its time; half-way between two samples, the
+    unit quaternion half-way along the arc; past ``asof``, the newest sample turned by its
+    gyro; nothing before the data or across the long gap."""
+    stage, _ = _fed(imu, list(range(4, len(imu[0]), 4)))
+    t = stage.t
+    q = stage.buf.cols(stage.Q, stage.Q + 4)
+    for k in (5, 400, 1500, len(t) - 2):
+        ok, qk, _ = stage.at(float(t[k]), math.inf)
+        assert ok and np.allclose(qk, q[k], atol=1e-12)
+        ok, qm, _ = stage.at(0.5 * float(t[k] + t[k + 1]), math.inf)
+        a, b = q[k], q[k + 1] * np.sign(q[k] @ q[k + 1])
+        assert ok and abs(np.linalg.norm(qm) - 1.0) < 1e-12
+        assert abs(abs(np.dot(qm, a)) - abs(np.dot(qm, b))) < 1e-12
+    # past asof: the gyro's rotation over the step (small-angle), from the newest sample
+    k = 700
+    ok, qp, _ = stage.at(float(t[k]) + 0.02, float(t[k]))
+    w = stage.buf.cols(stage.W, stage.W + 3)[k]
+    turn = 2.0 * math.degrees(math.acos(min(1.0, abs(float(np.dot(qp, q[k]))))))
+    assert ok and turn == pytest.approx(math.degrees(np.linalg.norm(w)) * 0.02, rel=0.05, abs=1e-3)
+    assert not stage.at(float(t[0]) - 1.0, math.inf)[0]
+    assert not stage.at(20.5, math.inf)[0]  # inside the long gap: two segments
