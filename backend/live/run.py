@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from backend import keys, wire
-from backend.analysis import DeviceRun
+from backend.analysis import DeviceRun, admit
 from backend.deps import SessionInfo
 from backend.live.devices import DeviceStats
 from backend.live.files import SessionFiles
@@ -71,6 +71,7 @@ class LiveRun:
         self.files = files
         self.params = session.params if session else PipelineParams()
         self.run = DeviceRun(device, self.params)
+        self.run.keep_rows = session is not None  # a preview keeps no rows
         if files is not None:
             self.run.est_lines = files.estimates
             self.run.det_lines = files.details
@@ -123,6 +124,13 @@ class LiveRun:
         return decoded
 
     def _feed(self, decoded: wire.Message) -> None:
+        resets = self.run.clock.resets
+        if not admit(self.run, decoded):  # a far jump of the device's clock
+            self.stats.reject(self.run.clock.reason)
+            return
+        if self.run.clock.resets != resets:
+            self.stats.reject("clock_reset")
+            self.latest_t = None
         try:
             ok = self.run.pipeline.feed(decoded)
         except Exception:
