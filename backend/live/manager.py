@@ -27,6 +27,8 @@ from backend.db.sessions import get_session, record_cycle, stop_session
 from backend.deps import LiveUnavailable, Point, SessionInfo
 from backend.live import feed, files
 from backend.live.admission import Admission
+from backend.live.budget import IngestBudget
+from backend.live.device_audit import EventAuditor
 from backend.live.devices import DeviceStats
 from backend.live.hub import Client, Hub, dumps
 from backend.live.ingest import MAX_PAYLOAD_BYTES, Ingest
@@ -73,6 +75,8 @@ class LiveManager:
         self.db = DbWriter(database)
         self.ingest = Ingest(self.prefix, self._worker_for)
         self.admission = Admission(settings.admit)  # names beyond it cost nothing persistent
+        self.budget = IngestBudget(settings.ingest_max_bytes)  # all devices' queues together
+        self.audit_events = EventAuditor(self.db, authenticated=settings.zenoh_config is not None)
         self.scheduler = Scheduler()
         self.zio: ZenohIO | None = None
         self.zenoh_error: str | None = None
@@ -205,6 +209,8 @@ class LiveManager:
                 max_bytes=DEVICE_QUEUE_BYTES,
                 on_change=self.changed,
                 view=self._rows_view,
+                budget=self.budget,
+                on_event=self.audit_events,
             )
             self.workers[name] = w
             st.last_seen = time.time()
@@ -403,7 +409,12 @@ class LiveManager:
         worker = self._worker_for(session.device)
         if worker is None:
             raise LiveUnavailable("device not admitted, or too many devices")
-        context = SessionContext(session, params, await self._patient_code(session.patient_id))
+        context = SessionContext(
+            session,
+            params,
+            await self._patient_code(session.patient_id),
+            self.settings.recording_max_bytes,
+        )
         session_files = files.SessionFiles(self.settings.data_dir, session.id)
         try:
             await self._run(worker, StartSession(context, session_files))

@@ -33,7 +33,7 @@ RawSample = tuple[str, bytes | None, int, float]
 
 # Room for bursts while the loop is busy; bytes bound it too (payloads reach 1 MiB).
 BUFFER_ITEMS = 1 << 16
-BUFFER_BYTES = 256 << 20
+BUFFER_BYTES = 32 << 20  # 256 MiB stayed resident after a flood (issue 21)
 # Samples between Zenoh's network thread and ours: ~0.4 s at 50 devices while the loop holds
 # the GIL (then Zenoh waits, the devices' own queues absorb it); the channel is drained at
 # once, so it holds little, but each slot may hold a message up to RX_MAX_MESSAGE_BYTES.
