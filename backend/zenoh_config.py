@@ -33,8 +33,9 @@ class ZenohConfigError(ValueError):
 def endpoints(cfg: zenoh.Config, which: str) -> list[str]:
     """``listen`` or ``connect`` endpoints of a config (a list, or a list per mode)."""
     raw = json.loads(cfg.get_json(f"{which}/endpoints"))
-    if isinstance(raw, dict):
-        return [e for v in raw.values() for e in (v or [])]
+    if isinstance(raw, dict):  # per mode: the ones of the config's mode
+        mode = json.loads(cfg.get_json("mode")) or "peer"
+        return list(raw.get(mode) or [])
     return list(raw or [])
 
 

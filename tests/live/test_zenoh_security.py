@@ -163,3 +163,36 @@ def test_plain_tcp_beyond_loopback_needs_opt_in(tmp_path: Path) -> None:
     )  # fmt: skip
     assert r.returncode == 2
     assert "--zenoh-allow-plain" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_router_set_up_of_compose(tmp_path: Path) -> None:
+    """docker-compose's set-up: a router with the rules, the service its client with its own
+    certificate (here the router is a Python Zenoh session in router mode, zenohd's code)."""
+    out, port = tmp_path / "pki", free_port()
+    args = ["--out", str(out), "--port", str(port), "--listen-host", "127.0.0.1"]
+    assert _script().main([*args, "--device", "dev01", "--device", "dev02"]) == 0
+    pki = (out, port)
+    router = zenoh.open(zenoh.Config.from_file(str(out / "zenoh-router.json5")))
+    running = _service(
+        Settings(
+            data_dir=tmp_path / "data",
+            port=free_port(),
+            zenoh_config=out / "zenoh-service-client.json5",
+            cookie_secure=False,
+            admit=["*"],
+        )
+    )
+    try:
+        service = next(running)
+        with device(pki, "dev01") as dev01:
+            dev01.declare_key("rehab/dev01/robot")
+            assert dev01.wait_for_subscribers(10.0)
+            dev01.session.put("rehab/dev02/robot", ROBOT)
+            time.sleep(0.3)
+            dev01.put("rehab/dev01/robot", ROBOT.encode())
+            wait_for(lambda: service.received("dev01") >= 1, what="through the router")
+            time.sleep(0.5)
+            assert service.device("dev02") is None
+    finally:
+        next(running, None)  # the generator's clean-up: the service stops
+        router.close()  # type: ignore[no-untyped-call]
