@@ -20,7 +20,14 @@ from typing import Any
 from sqlalchemy import func, select, update
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from backend.db.devices import mark_device_offline, registered_devices, remove_device, touch_device
+from backend.db.devices import (
+    get_device,
+    is_removed,
+    mark_device_offline,
+    registered_devices,
+    remove_device,
+    touch_device,
+)
 from backend.db.engine import Database
 from backend.db.models import Cycle, Patient, Session
 from backend.db.sessions import get_session, record_cycle, stop_session
@@ -406,6 +413,13 @@ class LiveManager:
 
     async def session_started(self, session: SessionInfo) -> str | None:
         params = PipelineParams.from_json(dict(session.params))
+        if not self.admission.allows(session.device):
+            # a registry row is an admission (e.g. written by another service instance)
+            async with self.database.session() as db:
+                row = await get_device(db, session.device)
+            if row is None or is_removed(row):
+                raise LiveUnavailable("device not admitted")
+            self.admission.admit(session.device)
         worker = self._worker_for(session.device)
         if worker is None:
             raise LiveUnavailable("device not admitted, or too many devices")

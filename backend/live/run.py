@@ -133,10 +133,11 @@ class LiveRun:
     def _feed(self, decoded: wire.Message) -> None:
         resets = self.run.clock.resets
         if not admit(self.run, decoded):  # a far jump of the device's clock
+            self.stats.accepted -= 1  # the decoder's acceptance, overruled
             self.stats.reject(self.run.clock.reason)
             return
-        if self.run.clock.resets != resets:
-            self.stats.reject("clock_reset")
+        if self.run.clock.resets != resets:  # counted in the report (clock_reset)
+            log.warning("device %s: clock changed for good; pipeline restarted", self.device)
             self.latest_t = None
         try:
             ok = self.run.pipeline.feed(decoded)
