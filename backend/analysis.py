@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from backend import clinical, keys, recording, wire
+from backend.clock_guard import ClockGuard, Verdict
 from estimators.output import Output, RowTable, concat_rows
 from estimators.params import PipelineParams
 from estimators.pipeline import Pipeline
@@ -273,6 +274,10 @@ class DeviceRun:
     )
     _waiting_n: int = 0
     _format_at: int = field(init=False)  # rows waiting before the next format_rows()
+    # far jumps of the device's clock: rejected, or a reset (backend.clock_guard)
+    clock: ClockGuard = field(default_factory=ClockGuard)
+    keep_rows: bool = True  # a reset takes the finished pipeline's rows (not a live preview)
+    _nominal_event: tuple[str, Any] | None = None  # the last one fed: carried over a reset
 
     def __post_init__(self) -> None:
         self.pipeline = Pipeline(self.params)
@@ -282,6 +287,40 @@ class DeviceRun:
 
     def reject(self, reason: str) -> None:
         self.decode_rejected[reason] = self.decode_rejected.get(reason, 0) + 1
+
+    def admit_stream(self, t0: float, t1: float) -> bool:
+        """The clock guard on an IMU/robot message (stamps ``t0``..``t1``): False if it is
+        rejected (counted); a reset restarts the pipeline first (:meth:`restart`)."""
+        verdict = self.clock.stream(t0, t1)
+        if verdict is Verdict.FEED:
+            return True
+        if verdict is Verdict.REJECT:
+            self.reject(self.clock.reason)
+            return False
+        self.restart(t0)
+        return True
+
+    def admit_event(self, msg: wire.EventMessage) -> bool:
+        if not self.clock.event(msg.t):
+            self.reject(self.clock.reason)
+            return False
+        if msg.type in ("shoulder_reference", "nominal_reset"):
+            self._nominal_event = (msg.type, msg.point)
+        return True
+
+    def restart(self, t: float) -> None:
+        """The device's clock changed for good: finish the pipeline (its rows are kept),
+        start a fresh one at ``t`` with the counters and the last nominal-shoulder event."""
+        old = self.pipeline
+        if self.keep_rows:
+            self.take(old.poll())
+            self.take(old.finish())
+        self.pipeline = Pipeline(self.params)
+        self.pipeline.quality = old.quality
+        self.reject("clock_reset")
+        if self._nominal_event is not None:
+            etype, point = self._nominal_event
+            self.pipeline.feed_event(t, etype, point)
 
     def take(self, out: Output) -> None:
         """Accumulate a poll's output (rows for the files, cycles, statistics)."""
@@ -479,10 +518,17 @@ def analyze(
                         others[dev] = others.get(dev, 0) + 1
                     continue
             if type(item) is span:
+                k = cols[item.key.kind]
+                if item.key.kind != "camera" and not run.admit_stream(
+                    k.tl[item.i0], k.tl[item.i1 - 1]
+                ):
+                    continue
+                pipeline = run.pipeline  # a new one after a clock reset
                 feed_span(pipeline, item, cols)
             elif isinstance(item, wire.WireError):
                 run.reject(item.reason)
-            else:
+            elif admit(run, item):
+                pipeline = run.pipeline
                 pipeline.feed(item)
     if run is None:
         run = DeviceRun(device or "", params)
@@ -495,6 +541,15 @@ def analyze(
     if out_dir is not None:
         write_outputs(run, rep, Path(out_dir))
     return run, rep
+
+
+def admit(run: DeviceRun, msg: wire.Message | wire.Span) -> bool:
+    """The clock guard's verdict on a decoded message (see :mod:`backend.clock_guard`)."""
+    if isinstance(msg, wire.EventMessage):
+        return run.admit_event(msg)
+    if isinstance(msg, (wire.ImuMessage, wire.RobotMessage)):
+        return run.admit_stream(float(msg.t[0]), float(msg.t[-1]))
+    return True
 
 
 def _feed_span(p: Pipeline, s: wire.Span, cols: dict[str, wire.Columns]) -> None:

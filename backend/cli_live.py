@@ -56,6 +56,9 @@ def settings_from_args(args: argparse.Namespace, **extra: Any) -> Settings:
         "database_url": args.database_url,
         "zenoh_listen": args.zenoh_listen,
         "zenoh_connect": args.zenoh_connect,
+        "zenoh_config": getattr(args, "zenoh_config", None),
+        "zenoh_allow_plain": getattr(args, "zenoh_allow_plain", None) or None,
+        "admit": getattr(args, "admit", None),
         **extra,
     }
     return Settings(**{k: v for k, v in given.items() if v is not None})
@@ -99,6 +102,25 @@ def add_parser(sub: Any) -> None:
         metavar="ENDPOINT",
         help="be a client of the Zenoh router at ENDPOINT (REHAB_ZENOH_CONNECT)",
     )
+    s.add_argument(
+        "--zenoh-config",
+        type=Path,
+        metavar="FILE",
+        help="Zenoh JSON5 config: mutual TLS and access control (REHAB_ZENOH_CONFIG; "
+        "made by scripts/make-clinic-certs.py)",
+    )
+    s.add_argument(
+        "--zenoh-allow-plain",
+        action="store_true",
+        help="allow plain TCP Zenoh on a non-loopback address (REHAB_ZENOH_ALLOW_PLAIN)",
+    )
+    s.add_argument(
+        "--admit",
+        action="append",
+        metavar="GLOB",
+        help="admit devices whose name matches GLOB without approval; repeatable; "
+        "'*' admits every name (REHAB_ADMIT, a JSON list)",
+    )
     s.set_defaults(func=cmd_serve)
 
     d = sub.add_parser(
@@ -129,6 +151,19 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
     logging.basicConfig(level=args.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
     settings = settings_from_args(args)
+    from backend.live.zenoh_io import make_config
+    from backend.zenoh_config import ZenohConfigError
+
+    try:  # a refused Zenoh set-up: one clear line, not a lifespan traceback
+        make_config(
+            listen=None if settings.zenoh_connect else settings.zenoh_listen,
+            connect=settings.zenoh_connect,
+            file=settings.zenoh_config,
+            allow_plain=settings.zenoh_allow_plain,
+        )
+    except ZenohConfigError as exc:
+        print(f"rehab serve: {exc}", file=sys.stderr)
+        return 2
     app = create_app(settings)
     app.state.live_required = True  # a service that cannot open Zenoh must not pretend
     uvicorn.run(
@@ -226,7 +261,12 @@ def cmd_demo(args: argparse.Namespace) -> int:
     endpoint = f"tcp/127.0.0.1:{zport}"
     data_dir = args.data_dir or Path("data/demo")  # data/ is git-ignored
     settings = settings_from_args(
-        args, host=host, port=port, data_dir=data_dir, zenoh_listen=endpoint
+        args,
+        host=host,
+        port=port,
+        data_dir=data_dir,
+        zenoh_listen=endpoint,
+        admit=[d for d, _, _ in DEMO_DEVICES],  # the simulated devices only
     )
     settings = replace_cookie_secure(settings, host)
     app = create_app(settings)

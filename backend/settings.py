@@ -57,6 +57,27 @@ class Settings(BaseSettings):
     zenoh_listen: str | None = "tcp/127.0.0.1:7447"
     zenoh_connect: str | None = None
     key_prefix: str = "rehab"
+    # Security of the device side (docs/security-zenoh.md)
+    zenoh_config: Path | None = Field(
+        default=None,
+        description="Zenoh JSON5 config (mutual TLS, access control), e.g. made by "
+        "scripts/make-clinic-certs.py; its endpoints win over zenoh_listen/zenoh_connect.",
+    )
+    zenoh_allow_plain: bool = Field(
+        default=False,
+        description="Allow plain (unauthenticated) TCP/UDP Zenoh on a non-loopback address.",
+    )
+    admit: list[str] = Field(
+        default_factory=list,
+        description="Device name globs admitted without approval ('*': every name); others "
+        "wait, unregistered, until an administrator admits them.",
+    )
+    recording_max_bytes: int = Field(
+        default=2 << 30, gt=0, description="Per session: device bytes recorded at most."
+    )
+    ingest_max_bytes: int = Field(
+        default=64 << 20, gt=0, description="All devices' payloads waiting to be processed."
+    )
 
     # Auth
     secret_key: SecretStr | None = Field(

@@ -30,7 +30,10 @@ from backend import keys, recording
 FloatArray: TypeAlias = NDArray[np.float64]
 
 MAX_PAYLOAD_BYTES = 1 << 20  # 1 MiB: a 1000 Hz IMU batch of 10 s is ~0.5 MiB
-MAX_SAMPLES = 20_000
+# Samples per stream message: devices send 1..10; 2000 is 20 s of a 100 Hz IMU in one
+# message. A message is processed in one go, so this bounds how long one message can hold
+# the service (~10 µs a sample: 20 ms); 20 000 held it for a quarter of a second.
+MAX_SAMPLES = 2_000
 EVENT_TYPES = ("shoulder_reference", "cycle_start", "nominal_reset")
 STATES = ("ok", "outside", "warning")
 
@@ -215,7 +218,7 @@ def _validate(
     if n == 0:
         raise WireError("empty", "no samples")
     if n > MAX_SAMPLES:
-        raise WireError("too_large", f"{n} samples > {MAX_SAMPLES}")
+        raise WireError("too_many_samples", f"{n} samples > {MAX_SAMPLES}")
     # JSON text cannot carry NaN/inf past the typed decoder; Python objects can
     if not from_json and not (
         all(map(math.isfinite, t))

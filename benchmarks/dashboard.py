@@ -77,7 +77,7 @@ def start_service(data: Path) -> tuple[subprocess.Popen[bytes], str, str, dict[s
     proc = subprocess.Popen(
         [sys.executable, "-m", "backend.cli", "serve", "--host", "127.0.0.1", "--port", str(port),
          "--zenoh-listen", f"tcp/127.0.0.1:{zport}", "--data-dir", str(data / "data"),
-         "--log-level", "warning"],
+         "--log-level", "warning", "--admit", "*"],
         cwd=REPO, env={**os.environ, "REHAB_VISER_ENABLED": "0"}, stdout=log,
         stderr=subprocess.STDOUT,
     )  # fmt: skip

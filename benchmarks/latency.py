@@ -239,6 +239,8 @@ def run(
             str(work / "data"),
             "--log-level",
             "warning",
+            "--admit",
+            "*",
         ],
         cwd=REPO,
         stdout=subprocess.DEVNULL,

@@ -5,13 +5,15 @@ from __future__ import annotations
 from datetime import datetime, timedelta
 from typing import Any
 
-from sqlalchemy import func, select, update
+from sqlalchemy import delete, func, select, update
 from sqlalchemy.dialects.postgresql import insert as pg_insert
 from sqlalchemy.dialects.sqlite import insert as sqlite_insert
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from backend.db.base import utcnow
-from backend.db.models import Device
+from backend.db.models import Device, Session
+
+REMOVED = "removed"  # key in a kept row's stats: an administrator removed the device
 
 
 async def touch_device(
@@ -63,3 +65,26 @@ def is_online(device: Device, offline_after_s: float, now: datetime | None = Non
     return device.status == "online" and now - device.last_seen <= timedelta(
         seconds=offline_after_s
     )
+
+
+def is_removed(device: Device) -> bool:
+    return bool(device.stats and device.stats.get(REMOVED))
+
+
+async def registered_devices(db: AsyncSession) -> list[str]:
+    """Names an administrator admitted (or the ingest registered): not removed ones."""
+    return [d.name for d in await db.scalars(select(Device)) if not is_removed(d)]
+
+
+async def remove_device(db: AsyncSession, name: str) -> None:
+    """Forget ``name``: its row goes, unless sessions refer to it; then it stays for their
+    history, offline and marked removed (a later admission replaces the mark)."""
+    device = await get_device(db, name)
+    if device is None:
+        return
+    used = await db.scalar(select(func.count()).where(Session.device_id == device.id))
+    if used:
+        device.status = "offline"
+        device.stats = {REMOVED: utcnow().isoformat()}
+    else:
+        await db.execute(delete(Device).where(Device.id == device.id))

@@ -20,12 +20,22 @@ from typing import Any
 from sqlalchemy import func, select, update
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from backend.db.devices import mark_device_offline, touch_device
+from backend.db.devices import (
+    get_device,
+    is_removed,
+    mark_device_offline,
+    registered_devices,
+    remove_device,
+    touch_device,
+)
 from backend.db.engine import Database
-from backend.db.models import Cycle, Device, Patient, Session
+from backend.db.models import Cycle, Patient, Session
 from backend.db.sessions import get_session, record_cycle, stop_session
 from backend.deps import LiveUnavailable, Point, SessionInfo
 from backend.live import feed, files
+from backend.live.admission import Admission
+from backend.live.budget import IngestBudget
+from backend.live.device_audit import EventAuditor
 from backend.live.devices import DeviceStats
 from backend.live.hub import Client, Hub, dumps
 from backend.live.ingest import MAX_PAYLOAD_BYTES, Ingest
@@ -71,6 +81,9 @@ class LiveManager:
         self.hub = Hub(settings.ws_max_rate_hz, settings.ws_queue_size)
         self.db = DbWriter(database)
         self.ingest = Ingest(self.prefix, self._worker_for)
+        self.admission = Admission(settings.admit)  # names beyond it cost nothing persistent
+        self.budget = IngestBudget(settings.ingest_max_bytes)  # all devices' queues together
+        self.audit_events = EventAuditor(self.db, authenticated=settings.zenoh_config is not None)
         self.scheduler = Scheduler()
         self.zio: ZenohIO | None = None
         self.zenoh_error: str | None = None
@@ -88,12 +101,16 @@ class LiveManager:
     async def start(self, require_zenoh: bool = False) -> None:
         self.db.start()
         async with self.database.session() as db:
-            for name in await db.scalars(select(Device.name)):
+            for name in await registered_devices(db):
                 self.stats[name] = DeviceStats(name)
+                self.admission.admit(name)
         s = self.settings
-        if s.zenoh_listen or s.zenoh_connect:
-            config = make_config(
-                listen=None if s.zenoh_connect else s.zenoh_listen, connect=s.zenoh_connect
+        if s.zenoh_listen or s.zenoh_connect or s.zenoh_config:
+            config = make_config(  # a refused set-up raises: the service must not start
+                listen=None if s.zenoh_connect else s.zenoh_listen,
+                connect=s.zenoh_connect,
+                file=s.zenoh_config,
+                allow_plain=s.zenoh_allow_plain,
             )
             zio = ZenohIO(
                 config,
@@ -180,8 +197,12 @@ class LiveManager:
     def _worker_for(self, name: str) -> DeviceWorker | None:
         w = self.workers.get(name)
         if w is None:
+            if not self.admission.allows(name):
+                self.admission.refuse(name, time.time())
+                return None
             st = self._device_stats(name)
             if st is None:
+                self.ingest.count("too_many_devices")
                 return None
             w = DeviceWorker(
                 name,
@@ -195,6 +216,8 @@ class LiveManager:
                 max_bytes=DEVICE_QUEUE_BYTES,
                 on_change=self.changed,
                 view=self._rows_view,
+                budget=self.budget,
+                on_event=self.audit_events,
             )
             self.workers[name] = w
             st.last_seen = time.time()
@@ -214,6 +237,9 @@ class LiveManager:
         return viz
 
     def _on_token(self, device: str, alive: bool) -> None:
+        if not self.admission.allows(device):
+            self.admission.refuse(device, time.time())
+            return
         st = self._device_stats(device)
         if st is None:
             self.ingest.count("too_many_devices")
@@ -225,6 +251,31 @@ class LiveManager:
             else:
                 self._mark_offline(device)
             self.changed(device)
+
+    def admit_device(self, name: str) -> None:
+        """An administrator admitted ``name``: registered now (a session can start on it)."""
+        self.admission.admit(name)
+        if self._worker_for(name) is None:
+            raise LiveUnavailable(f"device limit ({MAX_DEVICES}) reached")
+
+    def remove_device(self, name: str) -> bool:
+        """An administrator removed ``name``: no longer admitted, its live state dropped and
+        its registry row deleted (kept, marked removed, if sessions refer to it). False if
+        it is running a session. The deletion queues behind the registry's pending writes."""
+        w = self.workers.get(name)
+        if w is not None and w.live.session_id is not None:
+            return False
+        self.admission.remove(name)
+        if w is not None:
+            w.close()
+            del self.workers[name]
+        self.stats.pop(name, None)
+
+        async def op(db: AsyncSession) -> None:
+            await remove_device(db, name)
+
+        self.db.submit(f"removal of device {name}", op)
+        return True
 
     def device_names(self) -> list[str]:
         return sorted(self.stats)
@@ -362,10 +413,22 @@ class LiveManager:
 
     async def session_started(self, session: SessionInfo) -> str | None:
         params = PipelineParams.from_json(dict(session.params))
+        if not self.admission.allows(session.device):
+            # a registry row is an admission (e.g. written by another service instance)
+            async with self.database.session() as db:
+                row = await get_device(db, session.device)
+            if row is None or is_removed(row):
+                raise LiveUnavailable("device not admitted")
+            self.admission.admit(session.device)
         worker = self._worker_for(session.device)
         if worker is None:
-            raise LiveUnavailable("too many devices")
-        context = SessionContext(session, params, await self._patient_code(session.patient_id))
+            raise LiveUnavailable("device not admitted, or too many devices")
+        context = SessionContext(
+            session,
+            params,
+            await self._patient_code(session.patient_id),
+            self.settings.recording_max_bytes,
+        )
         session_files = files.SessionFiles(self.settings.data_dir, session.id)
         try:
             await self._run(worker, StartSession(context, session_files))

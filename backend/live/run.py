@@ -17,8 +17,9 @@ from typing import Any
 import numpy as np
 
 from backend import keys, wire
-from backend.analysis import DeviceRun
+from backend.analysis import DeviceRun, admit
 from backend.deps import SessionInfo
+from backend.live.budget import RecordingBudget
 from backend.live.devices import DeviceStats
 from backend.live.files import SessionFiles
 from backend.live.ingest import RawMessage, recorded_form
@@ -37,6 +38,7 @@ class SessionContext:
     info: SessionInfo
     params: PipelineParams
     patient: str | None
+    recording_max_bytes: int = 2 << 30  # Settings.recording_max_bytes
 
 
 def compact_stats(run: DeviceRun, every: int = 512) -> None:
@@ -71,11 +73,14 @@ class LiveRun:
         self.files = files
         self.params = session.params if session else PipelineParams()
         self.run = DeviceRun(device, self.params)
+        self.run.keep_rows = session is not None  # a preview keeps no rows
+        self.budget = RecordingBudget(session.recording_max_bytes if session else 0)
         if files is not None:
             self.run.est_lines = files.estimates
             self.run.det_lines = files.details
         self.latest_t: float | None = None  # newest IMU/robot stamp fed (for therapist events)
         self.fed_since_poll = False
+        self.fed_samples = 0  # since the last poll: the worker polls before they pile up
         self.cycle_index = 0
         self.nominal: tuple[float, float, float] | None = None
         # where the next nominal shoulder comes from (for the sessions table)
@@ -103,6 +108,9 @@ class LiveRun:
         """Record, decode and feed one message; returns it if the decoder accepted it."""
         assert msg.payload is not None
         line = recorded_form(msg.payload)
+        if self.files is not None and not self.budget.take(len(line), self.session_id):
+            self.stats.reject("recording_full")  # neither recorded nor fed: live = offline
+            return None
         try:
             decoded: wire.Message | None = wire.decode(msg.key, line, self.prefix)
         except wire.WireError as exc:
@@ -123,6 +131,14 @@ class LiveRun:
         return decoded
 
     def _feed(self, decoded: wire.Message) -> None:
+        resets = self.run.clock.resets
+        if not admit(self.run, decoded):  # a far jump of the device's clock
+            self.stats.accepted -= 1  # the decoder's acceptance, overruled
+            self.stats.reject(self.run.clock.reason)
+            return
+        if self.run.clock.resets != resets:  # counted in the report (clock_reset)
+            log.warning("device %s: clock changed for good; pipeline restarted", self.device)
+            self.latest_t = None
         try:
             ok = self.run.pipeline.feed(decoded)
         except Exception:
@@ -131,6 +147,7 @@ class LiveRun:
         self.fed_since_poll = True
         if ok and isinstance(decoded, (wire.ImuMessage, wire.RobotMessage)):
             n = len(decoded.t)
+            self.fed_samples += n
             if isinstance(decoded, wire.ImuMessage):
                 self.stats.imu_samples += n
             else:
@@ -165,6 +182,7 @@ class LiveRun:
 
     def poll(self, final: bool = False) -> Output | None:
         self.fed_since_poll = False
+        self.fed_samples = 0
         try:
             out = self.run.pipeline.poll()
             if final:

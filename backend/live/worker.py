@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -24,6 +25,7 @@ from backend import clinical, wire
 from backend.db.sessions import record_cycle, store_nominal_shoulder
 from backend.deps import LiveUnavailable
 from backend.live import feed
+from backend.live.budget import POLL_SAMPLES, ROUND_S, TURN_BYTES, IngestBudget
 from backend.live.devices import DeviceStats
 from backend.live.files import SessionFiles
 from backend.live.hub import Hub
@@ -106,6 +108,7 @@ class Scheduler:
     def __init__(self) -> None:
         self._ready: dict[DeviceWorker, None] = {}  # an ordered set
         self._handle: asyncio.Handle | None = None
+        self._cut = False  # the last round ran out of time
 
     def ready(self, worker: DeviceWorker) -> None:
         self._ready[worker] = None
@@ -114,13 +117,30 @@ class Scheduler:
 
     def _scheduled(self) -> None:
         self._handle = None
+        self._cut = False
         self.run()
 
     def run(self) -> None:
-        """One round now (ingest calls it right after routing a batch)."""
+        """One round now (ingest calls it right after routing a batch). A round holds the
+        loop ``ROUND_S`` at most: the workers not reached keep their place for the next,
+        which is already scheduled; until it has run, ingest's calls add no round (under a
+        flood one round per loop iteration, so a request waits ~ROUND_S per await)."""
+        if self._cut and self._handle is not None:
+            return
+        self._cut = False
         ready, self._ready = self._ready, {}
-        for worker in ready:
+        end = time.perf_counter() + ROUND_S  # loop time, never seen by a pipeline
+        workers = iter(ready)
+        for worker in workers:
             worker.turn()
+            if time.perf_counter() > end:
+                rest = dict.fromkeys(workers)
+                self._cut = True
+                if rest:
+                    self._ready = {**rest, **self._ready}
+                    if self._handle is None:
+                        self._handle = asyncio.get_running_loop().call_soon(self._scheduled)
+                break
 
 
 class DeviceWorker:
@@ -138,6 +158,8 @@ class DeviceWorker:
         max_bytes: int,
         on_change: Callable[[str], None],
         view: Callable[[], RowsView | None] = lambda: None,
+        budget: IngestBudget | None = None,
+        on_event: Callable[[str, int, wire.EventMessage, str], None] | None = None,
     ) -> None:
         self.name = name
         self.stats = stats
@@ -150,6 +172,8 @@ class DeviceWorker:
         self._max_bytes = max_bytes
         self._on_change = on_change
         self._view = view
+        self._budget = budget or IngestBudget(max_bytes)  # shared by all devices
+        self._on_event = on_event  # device events during a session: audited
         self.live = LiveRun(name, prefix, stats)
         self._queue: deque[RawMessage | Command] = deque()
         self._bytes = 0
@@ -171,7 +195,11 @@ class DeviceWorker:
         if msg.payload is None:
             st.reject("too_large")  # not kept, not recorded: bounded memory and storage
             return
-        if len(self._queue) >= self._max_items or self._bytes + msg.size > self._max_bytes:
+        if (
+            len(self._queue) >= self._max_items
+            or self._bytes + msg.size > self._max_bytes
+            or not self._budget.take(msg.size, self._bytes)
+        ):
             st.dropped += 1
             return
         self._queue.append(msg)
@@ -214,8 +242,8 @@ class DeviceWorker:
             self._scheduler.ready(self)
 
     def _step(self) -> None:
-        n = 0
-        while self._queue and n < BATCH:
+        n = nbytes = 0
+        while self._queue and n < BATCH and nbytes < TURN_BYTES:
             item = self._queue.popleft()
             n += 1
             if isinstance(item, Command):
@@ -223,8 +251,13 @@ class DeviceWorker:
                 self._command(item)
                 continue
             self._bytes -= item.size
+            self._budget.give(item.size)
+            nbytes += item.size
             try:
-                self.live.ingest(item)
+                decoded = self.live.ingest(item)
+                sid = self.live.session_id
+                if type(decoded) is wire.EventMessage and sid is not None and self._on_event:
+                    self._on_event(self.name, sid, decoded, item.key)
             except Exception:  # recorder I/O and the like: count, keep the device going
                 self.internal_errors += 1
                 self.stats.reject("internal_error")
@@ -234,7 +267,9 @@ class DeviceWorker:
 
     def _poll_if_ready(self) -> None:
         live = self.live
-        if live.fed_since_poll and rows_ready(live.pipeline):
+        # also when samples pile up without rows (an IMU-only flood): one poll then does a
+        # bounded amount of work, never seconds of it (same numbers: polls never change them)
+        if live.fed_since_poll and (rows_ready(live.pipeline) or live.fed_samples >= POLL_SAMPLES):
             self._emit(live.poll())
 
     # ------------------------------------------------------------------ outputs

@@ -20,11 +20,12 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import zenoh
 
-from backend import keys
+from backend import keys, zenoh_config
 
 log = logging.getLogger(__name__)
 
@@ -32,7 +33,7 @@ RawSample = tuple[str, bytes | None, int, float]
 
 # Room for bursts while the loop is busy; bytes bound it too (payloads reach 1 MiB).
 BUFFER_ITEMS = 1 << 16
-BUFFER_BYTES = 256 << 20
+BUFFER_BYTES = 32 << 20  # 256 MiB stayed resident after a flood (issue 21)
 # Samples between Zenoh's network thread and ours: ~0.4 s at 50 devices while the loop holds
 # the GIL (then Zenoh waits, the devices' own queues absorb it); the channel is drained at
 # once, so it holds little, but each slot may hold a message up to RX_MAX_MESSAGE_BYTES.
@@ -49,17 +50,35 @@ RX_MAX_MESSAGE_BYTES = 16 << 20
 
 
 def make_config(
-    *, listen: str | None = None, connect: str | None = None, mode: str | None = None
+    *,
+    listen: str | None = None,
+    connect: str | None = None,
+    mode: str | None = None,
+    file: Path | None = None,
+    allow_plain: bool = True,
 ) -> zenoh.Config:
     """Explicit endpoints only: multicast scouting is off so that a clinic's services,
-    test runs and devices on one network never discover each other by accident."""
-    cfg = zenoh.Config()
-    cfg.insert_json5("mode", json.dumps(mode or ("client" if connect and not listen else "peer")))
+    test runs and devices on one network never discover each other by accident.
+
+    ``file``: a Zenoh JSON5 config (TLS, access control); its own endpoints and mode win.
+    The service passes its ``zenoh_allow_plain`` setting: then plain TCP on a non-loopback
+    address raises :class:`ZenohConfigError` (see :mod:`backend.zenoh_config`)."""
+    cfg = zenoh_config.load(file) if file is not None else zenoh.Config()
+    if file is None or not zenoh_config.endpoints(cfg, "listen") + zenoh_config.endpoints(
+        cfg, "connect"
+    ):
+        cfg.insert_json5(
+            "mode", json.dumps(mode or ("client" if connect and not listen else "peer"))
+        )
+        if listen:
+            cfg.insert_json5("listen/endpoints", json.dumps([listen]))
+        if connect:
+            cfg.insert_json5("connect/endpoints", json.dumps([connect]))
+    zenoh_config.check_transport(
+        zenoh_config.endpoints(cfg, "listen") + zenoh_config.endpoints(cfg, "connect"),
+        allow_plain,
+    )
     cfg.insert_json5("scouting/multicast/enabled", "false")
-    if listen:
-        cfg.insert_json5("listen/endpoints", json.dumps([listen]))
-    if connect:
-        cfg.insert_json5("connect/endpoints", json.dumps([connect]))
     cfg.insert_json5("transport/link/rx/max_message_size", str(RX_MAX_MESSAGE_BYTES))
     return cfg
 

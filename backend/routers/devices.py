@@ -2,13 +2,19 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, HTTPException, status
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Depends, HTTPException, Path, status
 from sqlalchemy import select
 
+from backend import keys
+from backend.auth.guards import AdminTherapist, require_admin
+from backend.db.audit import audit
 from backend.db.base import utcnow
-from backend.db.devices import is_online
+from backend.db.devices import is_online, is_removed
 from backend.db.models import Device, Session
-from backend.deps import DB, SettingsDep
+from backend.deps import DB, LiveUnavailable, SettingsDep, State
+from backend.live.manager import LiveManager
 from backend.schemas.devices import DeviceOut
 
 router = APIRouter(prefix="/devices", tags=["devices"])
@@ -35,12 +41,52 @@ async def _devices(db: DB, settings: SettingsDep, name: str | None = None) -> li
             active_session_id=session_id,
         )
         for device, session_id in await db.execute(stmt)
+        if not is_removed(device)
     ]
 
 
 @router.get("")
 async def list_devices(db: DB, settings: SettingsDep) -> list[DeviceOut]:
     return await _devices(db, settings)
+
+
+def _manager(state: State) -> LiveManager:
+    live = state.live
+    if not isinstance(live, LiveManager):
+        raise HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE, "no live service")
+    return live
+
+
+DeviceName = Path(pattern=f"^{keys.DEVICE_RE.pattern}$", max_length=64)
+
+
+@router.get("/admission", dependencies=[Depends(require_admin)])
+async def admission(state: State) -> dict[str, Any]:
+    """The ``--admit`` globs and the names waiting for approval (in memory, bounded)."""
+    return _manager(state).admission.snapshot()
+
+
+@router.post("/{name}/admit", status_code=status.HTTP_201_CREATED)
+async def admit_device(
+    name: Annotated[str, DeviceName], admin: AdminTherapist, state: State, db: DB
+) -> dict[str, str]:
+    try:
+        _manager(state).admit_device(name)
+    except LiveUnavailable as exc:
+        raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
+    audit(db, admin, "device.admit", f"device:{name}")
+    await db.commit()
+    return {"name": name, "status": "admitted"}
+
+
+@router.delete("/{name}", status_code=status.HTTP_204_NO_CONTENT)
+async def remove_device(
+    name: Annotated[str, DeviceName], admin: AdminTherapist, state: State, db: DB
+) -> None:
+    if not _manager(state).remove_device(name):
+        raise HTTPException(status.HTTP_409_CONFLICT, "the device is running a session")
+    audit(db, admin, "device.remove", f"device:{name}")
+    await db.commit()
 
 
 @router.get("/{name}")

@@ -151,6 +151,7 @@ def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
             port=free_port(),
             zenoh_listen=f"tcp/127.0.0.1:{free_port()}",
             cookie_secure=False,
+            admit=["*"],  # every device name, as a test harness publishes many
         )
     )
 

@@ -58,15 +58,17 @@ def test_the_service_is_a_client_of_the_router_and_uses_postgres() -> None:
         **{**{k[6:].lower(): v for k, v in env.items()}, **settings.model_dump(exclude_unset=True)}
     )
 
-    # Zenoh: a client of the router service, on the port the router listens on
-    assert args.zenoh_connect and args.zenoh_listen is None
-    proto, hostport = settings.zenoh_connect.split("/", 1)  # type: ignore[union-attr]
-    host, port = hostport.rsplit(":", 1)
-    assert proto == "tcp" and host == "zenoh"
+    # Zenoh: mutual TLS and access control, the router and the service configured by the
+    # files scripts/make-clinic-certs.py makes, mounted where the configs point
+    assert args.zenoh_config is not None and args.zenoh_listen is None
+    mounted = {v.split(":")[1]: v.split(":")[0] for v in rehab["volumes"]}
+    assert mounted[str(args.zenoh_config)] == "./clinic-pki/zenoh-service-client.json5"
     zenoh_cmd = services["zenoh"]["command"]
-    listen = zenoh_cmd[zenoh_cmd.index("-l") + 1]
-    assert listen.endswith(f":{port}")
-    assert f"{port}:{port}" in services["zenoh"]["ports"]  # devices reach the router
+    router_cfg = zenoh_cmd[zenoh_cmd.index("-c") + 1]
+    router_mounts = {v.split(":")[1]: v.split(":")[0] for v in services["zenoh"]["volumes"]}
+    assert router_mounts[router_cfg] == "./clinic-pki/zenoh-router.json5"
+    assert not any("ca-key" in v for v in rehab["volumes"] + services["zenoh"]["volumes"])
+    assert "7447:7447" in services["zenoh"]["ports"]  # devices reach the router
     rest_port = zenoh_cmd[zenoh_cmd.index("--rest-http-port") + 1]
     assert f":{rest_port}/" in " ".join(services["zenoh"]["healthcheck"]["test"])
 

@@ -50,6 +50,8 @@ class ServiceProcess:
             db_url,
             "--log-level",
             "warning",
+            "--admit",
+            "*",
         ]
         self.settings = Settings(data_dir=data_dir, database_url=db_url)
         self.proc: subprocess.Popen[bytes] | None = None

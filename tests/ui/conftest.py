@@ -102,7 +102,7 @@ def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
         proc = subprocess.Popen(
             [sys.executable, "-m", "backend.cli", "serve", "--host", "127.0.0.1",
              "--port", str(port), "--zenoh-listen", f"tcp/127.0.0.1:{zport}",
-             "--data-dir", str(data / "data"), "--log-level", "warning"],
+             "--data-dir", str(data / "data"), "--log-level", "warning", "--admit", "*"],
             cwd=REPO, env=env, stdout=out, stderr=subprocess.STDOUT,
         )  # fmt: skip
     url = f"http://127.0.0.1:{port}"
