@@ -57,7 +57,7 @@ class Settings(BaseSettings):
     zenoh_listen: str | None = "tcp/127.0.0.1:7447"
     zenoh_connect: str | None = None
     key_prefix: str = "rehab"
-    # Security of the device side (docs/security-zenoh.md)
+    # Security of the device side (docs/security.md)
     zenoh_config: Path | None = Field(
         default=None,
         description="Zenoh JSON5 config (mutual TLS, access control), e.g. made by "

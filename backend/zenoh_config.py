@@ -1,7 +1,7 @@
 """The Zenoh side of the clinic's security: which transports are allowed, and the JSON5 config
 (mutual TLS and access control) that ``REHAB_ZENOH_CONFIG`` names.
 
-Policy (docs/security-zenoh.md):
+Policy (docs/security.md):
 
 - Plain TCP/UDP (no authentication, no encryption) is accepted on loopback only; on any
   other address the operator must opt in (``--zenoh-allow-plain``, ``REHAB_ZENOH_ALLOW_PLAIN``).
