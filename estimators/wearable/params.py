@@ -116,7 +116,7 @@ class WearableParams:
     # streams
     forearm_tolerance_s: float = 0.006  # a forearm sample this close pairs with the upper one
     forearm_missing_s: float = 0.1  # no forearm sample this long: steps go on without it
-    camera_max_age_s: float = 0.1  # an older camera sample is rejected as stale
+    camera_max_age_s: float = 0.2  # an older camera sample is rejected as stale
     max_gap_s: float = 0.25  # a longer upper-arm gap restarts the filter
     rest_s: float = 2.0  # the start at rest checked against the zero pose
     rest_gyro_dps: float = 20.0
