@@ -29,6 +29,7 @@ beyond joint m about ``a_m``).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import NamedTuple, TypeAlias
 
@@ -83,6 +84,7 @@ def dh_table(theta: F64, upper_arm_m: float, forearm_m: float) -> list[tuple[flo
 # Frame 3 of the table in U's axes (x3 = −y_U, y3 = x_U, z3 = z_U); frame 6 is F itself.
 R_U3: F64 = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 _JOINT_ROWS = (0, 1, 2, 4, 5)  # the table rows whose γ is a joint angle
+_RX = {b: dh(0.0, 0.0, b, 0.0)[0] for b in (0.0, _HALF_PI, -_HALF_PI)}
 
 
 class Pose(NamedTuple):
@@ -103,13 +105,14 @@ def pose(theta: F64, upper_arm_m: float, forearm_m: float) -> Pose:
     axes = np.empty((5, 3))
     frames: list[tuple[F64, F64]] = []
     j = 0
-    for i, row in enumerate(dh_table(theta, upper_arm_m, forearm_m)):
+    for i, (gamma, lam, beta, _) in enumerate(dh_table(theta, upper_arm_m, forearm_m)):
         if i in _JOINT_ROWS:
             axes[j] = rot[:, 2]
             j += 1
-        r, p = dh(*row)
-        pos = pos + rot @ p
-        rot = rot @ r
+        if lam:  # eq. 11: the rows here translate along z only (δ = 0)
+            pos = pos + lam * rot[:, 2]
+        cg, sg = math.cos(gamma), math.sin(gamma)
+        rot = rot @ (np.array([[cg, -sg, 0.0], [sg, cg, 0.0], [0.0, 0.0, 1.0]]) @ _RX[beta])
         frames.append((rot, pos))
     r_su = frames[2][0] @ R_U3.T
     return Pose(axes, r_su, frames[5][0], frames[3][1], frames[6][1])
@@ -260,7 +263,7 @@ def sensors(
     R_SIf = ps.R_SF @ geo.R_FI
 
     def acc_at(al: F64, om: F64, r: F64) -> F64:
-        return _cross(al, r) + _cross(om, _cross(om, r))  # eq. 14 with a fixed origin term
+        return _cross1(al, r) + _cross1(om, _cross1(om, r))  # eq. 14 with a fixed origin term
 
     acc_e = acc_at(al_u, w_u, elbow)
     pdd_u = acc_at(al_u, w_u, d_u)
@@ -273,54 +276,79 @@ def sensors(
     if not jacobian:
         return Sensors(gyr_u, acc_u, gyr_f, acc_f, elbow, wrist, None, None, None, None, None, None)
 
-    # ∂/∂θ_m: everything beyond joint m turns about a_m (rows m = 0..4).
+    # Derivatives as (15, 3) arrays: rows 0–4 ∂/∂θ̈_m, 5–9 ∂/∂θ̇_m, 10–14 ∂/∂θ_m.
+    # ∂/∂θ_m: everything beyond joint m turns about a_m.
     mask_u = _MASK_U
-    dw_u = _cross(a, w_u - w) * mask_u
-    dw_f = _cross(a, w_f - w)
-    dal_u = (
-        _cross(a, (al_u - alpha) - _cross(w, w_u - w)) + _cross(w, _cross(a, w_u - w))
-    ) * mask_u
-    dal_f = _cross(a, (al_f - alpha) - _cross(w, w_f - w)) + _cross(w, _cross(a, w_f - w))
-    # ∂/∂θ̇_m and ∂/∂θ̈_m
-    dwd_u = a * mask_u
-    dwd_f = a
-    dald_u = (wxa + _cross(a, w_u - w)) * mask_u
-    dald_f = wxa + _cross(a, w_f - w)
-    dald2_u = dwd_u
-    dald2_f = a
+    du, df = w_u - w, w_f - w
+    zero = np.zeros((5, 3))
+    dw_u = np.vstack((zero, a * mask_u, _cross(a, du) * mask_u))
+    dw_f = np.vstack((zero, a, _cross(a, df)))
+    dal_u = np.vstack(
+        (
+            a,
+            wxa + _cross(a, du),
+            _cross(a, (al_u - alpha) - _cross(w, du)) + _cross(w, _cross(a, du)),
+        )
+    ) * np.vstack((mask_u, mask_u, mask_u))
+    dal_f = np.vstack(
+        (
+            a,
+            wxa + _cross(a, df),
+            _cross(a, (al_f - alpha) - _cross(w, df)) + _cross(w, _cross(a, df)),
+        )
+    )
+    # a_m × v for single vectors v, as one product with the stacked axes
+    cross_a = a @ _skew_stack(ps.elbow, d_u, d_f, d_w, w_u, w_f, v_au, v_af)
+    de, ddu, ddf, dwr, ax_wu, ax_wf, ax_vu, ax_vf = (
+        cross_a[:, 3 * k : 3 * k + 3] for k in range(8)
+    )
+    de, ddu, ax_wu, ax_vu = de * mask_u, ddu * mask_u, ax_wu * mask_u, ax_vu * mask_u
+    zeros10 = np.zeros((10, 3))
 
-    def dacc(dal: F64, dom: F64, al: F64, om: F64, r: F64, dr: F64 | None) -> F64:
-        out = _cross(dal, r) + _cross(dom, _cross(om, r)) + _cross(om, _cross(dom, r))
-        if dr is not None:
-            out = out + _cross(al, dr) + _cross(om, _cross(om, dr))
+    def dacc(dal: F64, dom: F64, al: F64, om: F64, r: F64, dr: F64) -> F64:
+        """∂(α × r + ω × (ω × r)) for (15, 3) ∂α, ∂ω and ∂r (only θ rows move r)."""
+        k_r, k_om = _skew(r), _skew(om)
+        out = dal @ k_r + dom @ _skew(_cross1(om, r)) - (dom @ k_r) @ k_om
+        out[10:] += -(dr @ _skew(al)) + (dr @ k_om) @ k_om
         return out
 
-    de = _cross(a, elbow) * mask_u
-    ddu = _cross(a, d_u) * mask_u
-    ddf = _cross(a, d_f)
-    dwr = _cross(a, d_w)
-    zero = np.zeros((5, 3))
-
-    def jac(d2: F64, d1: F64, d0: F64) -> F64:
-        return np.hstack((d2.T, d1.T, d0.T))
-
     # gyros: z = R_SI^T ω, ∂z/∂θ_m = R_SI^T (∂ω − a_m × ω) for joints before the IMU
-    j_gu = jac(zero, dwd_u @ R_SIu, (dw_u - _cross(a, w_u) * mask_u) @ R_SIu)
-    j_gf = jac(zero, dwd_f @ R_SIf, (dw_f - _cross(a, w_f)) @ R_SIf)
+    g_u = dw_u.copy()
+    g_u[10:] -= ax_wu
+    g_f = dw_f.copy()
+    g_f[10:] -= ax_wf
     if body:
-        a_u2 = dacc(dald2_u, zero, al_u, w_u, d_u, None)
-        a_u1 = dacc(dald_u, dwd_u, al_u, w_u, d_u, None)
-        a_u0 = dacc(dal_u, dw_u, al_u, w_u, d_u, ddu)
-        e2 = dacc(dald2_u, zero, al_u, w_u, elbow, None)
-        e1 = dacc(dald_u, dwd_u, al_u, w_u, elbow, None)
-        e0 = dacc(dal_u, dw_u, al_u, w_u, elbow, de)
-        a_f2 = e2 + dacc(dald2_f, zero, al_f, w_f, d_f, None)
-        a_f1 = e1 + dacc(dald_f, dwd_f, al_f, w_f, d_f, None)
-        a_f0 = e0 + dacc(dal_f, dw_f, al_f, w_f, d_f, ddf)
+        e_all = dacc(dal_u, dw_u, al_u, w_u, elbow, de)
+        a_u = dacc(dal_u, dw_u, al_u, w_u, d_u, ddu)
+        a_f = e_all + dacc(dal_f, dw_f, al_f, w_f, d_f, ddf)
     else:
-        a_u2 = a_u1 = a_u0 = a_f2 = a_f1 = a_f0 = zero
-    j_au = jac(a_u2 @ R_SIu, a_u1 @ R_SIu, (a_u0 - _cross(a, v_au) * mask_u) @ R_SIu)
-    j_af = jac(a_f2 @ R_SIf, a_f1 @ R_SIf, (a_f0 - _cross(a, v_af)) @ R_SIf)
-    j_e = jac(zero, zero, de)
-    j_w = jac(zero, zero, de + dwr)
+        a_u = np.zeros((15, 3))
+        a_f = np.zeros((15, 3))
+    a_u[10:] -= ax_vu
+    a_f[10:] -= ax_vf
+    j_gu = (g_u @ R_SIu).T
+    j_gf = (g_f @ R_SIf).T
+    j_au = (a_u @ R_SIu).T
+    j_af = (a_f @ R_SIf).T
+    j_e = np.vstack((zeros10, de)).T
+    j_w = np.vstack((zeros10, de + dwr)).T
     return Sensors(gyr_u, acc_u, gyr_f, acc_f, elbow, wrist, j_gu, j_au, j_gf, j_af, j_e, j_w)
+
+
+def _skew(v: F64) -> F64:
+    """``K`` with ``a @ K == a × v`` for rows ``a``."""
+    x, y, z = float(v[0]), float(v[1]), float(v[2])
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def _skew_stack(*vs: F64) -> F64:
+    """Side-by-side :func:`_skew` of several vectors, (3, 3·k)."""
+    x, y, z = np.array(vs).T
+    o = np.zeros_like(x)
+    return np.array([[o, -z, y], [z, o, -x], [-y, x, o]]).transpose(0, 2, 1).reshape(3, -1)
+
+
+def _cross1(a: F64, b: F64) -> F64:
+    a0, a1, a2 = float(a[0]), float(a[1]), float(a[2])
+    b0, b1, b2 = float(b[0]), float(b[1]), float(b[2])
+    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])

@@ -351,7 +351,9 @@ def _emit(
     # each shoulder angle's share of a pure turn about the vertical: Σ a_j δθ_j = ẑ δψ
     turn = np.zeros(5)
     if all(j in model.joints for j in (0, 1, 2)):
-        turn[:3] = np.linalg.lstsq(ps.axes[:3].T, _UP, rcond=None)[0]
+        a3 = ps.axes[:3].T
+        if abs(np.linalg.det(a3)) > 1e-6:  # away from the gimbal lock at 90° abduction
+            turn[:3] = np.linalg.solve(a3, _UP)
     std = np.hypot(std, np.radians(state.vertical_deg) * turn)
     if params.side == "left":
         elbow, wrist = mirror_vectors(elbow), mirror_vectors(wrist)
