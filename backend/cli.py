@@ -24,6 +24,17 @@ def _load_params(path: str | None) -> PipelineParams:
         raise SystemExit(f"rehab: bad parameters in {path}: {exc}") from None
 
 
+def _wearable_params(path: str | None) -> dict[str, object] | None:
+    """The parameter object if it asks for the wearable mode (``"mode": "wearable"``)."""
+    if path is None:
+        return None
+    try:
+        obj = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return None  # reported by _load_params
+    return obj if isinstance(obj, dict) and obj.get("mode") == "wearable" else None
+
+
 def cmd_analyze(args: argparse.Namespace) -> int:
     from backend.analysis import analyze, gc_paused
 
@@ -31,6 +42,11 @@ def cmd_analyze(args: argparse.Namespace) -> int:
     if not rec.is_file():
         print(f"rehab analyze: no such recording: {rec}", file=sys.stderr)
         return 2
+    wearable = _wearable_params(args.params)
+    if wearable is not None:  # contract §8: the mode is chosen by the parameter file
+        from backend import analysis_wearable
+
+        return analysis_wearable.cmd_analyze(rec, wearable, args.out, args.device)
     params = _load_params(args.params)
     t0 = time.perf_counter()
     with gc_paused():

@@ -121,6 +121,8 @@ class WearableParams:
     rest_s: float = 2.0  # the start at rest checked against the zero pose
     rest_gyro_dps: float = 20.0
     mounting_tolerance_deg: float = 20.0  # gravity at rest vs the zero pose's prediction
+    max_gyro_rads: float = 35.0  # ~2000 °/s: a sample beyond it is a glitch, rejected
+    max_acc_ms2: float = 160.0  # ~16 g
     nis_window: int = 100
     nis_limit: float = 5.0  # mean normalised innovation per row above this: flag
     extra: dict[str, Any] = field(default_factory=dict, compare=False)

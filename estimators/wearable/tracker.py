@@ -128,6 +128,12 @@ def feed(
         if not (math.isfinite(ti) and np.isfinite(u[i]).all() and np.isfinite(v[i]).all()):
             state.rejected[f"nonfinite_{kind}"] += 1
             continue
+        if kind != "camera" and (
+            float(np.abs(u[i]).max()) > params.max_gyro_rads
+            or float(np.abs(v[i]).max()) > params.max_acc_ms2
+        ):
+            state.rejected[f"out_of_range_{kind}"] += 1  # beyond any body-worn IMU's range
+            continue
         if ti <= state.t_seen[kind]:
             state.rejected[f"time_backwards_{kind}"] += 1
             continue
