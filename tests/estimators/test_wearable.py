@@ -229,7 +229,7 @@ def _rmse(a, b):
 
 def test_tracks_a_two_segment_motion_at_100hz():
     fn = _motion((50, 20, 30, 70, 40), 0.4)
-    t, msgs = _session(fn, dur=14.0)
+    t, msgs = _session(fn, dur=10.0)
     rows, st = tracker.run(WearableParams(), msgs)
     assert len(rows["t"]) == len(t)
     truth = np.degrees(fn(t))
@@ -354,7 +354,7 @@ def test_mounting_that_does_not_fit_is_flagged():
 def test_confidence_is_honest_about_the_vertical_without_camera():
     # at rest the gyros' bias about the vertical cannot be told from a slow turn of the arm
     fn = _motion((0, 0, 0, 0, 0), 0.3)
-    t, msgs = _session(fn, dur=15.0)
+    t, msgs = _session(fn, dur=10.0)
     rows, _ = tracker.run(WearableParams(), msgs)
     v = rows["vertical_std_deg"]
     k5 = np.searchsorted(t, 5.0)
@@ -363,9 +363,9 @@ def test_confidence_is_honest_about_the_vertical_without_camera():
     assert v[-1] > 5.0 * rows["elbow_flexion_std_deg"][-1]  # gravity keeps the flexion
     # moving, with a camera: the turn is seen, its σ stays far below the camera-less one
     fn = _motion((50, 20, 20, 60, 30), 0.3)
-    t, msgs = _session(fn, dur=15.0)
+    t, msgs = _session(fn, dur=10.0)
     no_cam, _ = tracker.run(WearableParams(), msgs)
-    t, msgs = _session(fn, dur=15.0, camera=True)
+    t, msgs = _session(fn, dur=10.0, camera=True)
     cam, _ = tracker.run(WearableParams(), msgs)
     assert cam["vertical_std_deg"][-1] < 0.5 * no_cam["vertical_std_deg"][-1]
 
