@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from estimators.wearable import tracker
-from estimators.wearable.params import WearableParams
+from estimators.wearable.params import Mounting, WearableParams
 from simulator import wearable as w
 from simulator import wearable_moves as moves
 from simulator.wearable_arm import Mount, imu_readings, joint_positions, rotations
@@ -70,7 +70,16 @@ def one_segment(
     g = g + rng.normal(0, SIG_G, g.shape) + np.array([0.0, 0.0, np.radians(gyr_bias_dps)])
     a = a + rng.normal(0, SIG_A, a.shape) + np.array([0.0, acc_bias, 0.0])  # IMU y: forward
     msgs: list[tuple[str, F64, F64, F64]] = [("upperarm", t, g, a)]
-    params = dict(joints=(0,), forearm=False, gyro_bias=False)
+    mount = Mounting((float(imu_pos[0]), float(imu_pos[1]), float(imu_pos[2])))
+    # the paper's 3 Hz sweep exceeds a real IMU's 16 g: its sensors here have no range limit
+    params: dict[str, Any] = dict(
+        joints=(0,),
+        forearm=False,
+        gyro_bias=False,
+        upperarm_imu=mount,
+        max_acc_ms2=1e4,
+        max_gyro_rads=1e3,
+    )
     if cam_var is not None:
         e, _ = joint_positions(theta_fn(t), 0.30, 0.25)
         e = e + rng.normal(0, np.sqrt(cam_var), e.shape)
@@ -78,7 +87,8 @@ def one_segment(
         params["sigma_pos_m"] = float(np.sqrt(cam_var))
     params.update(kw)
     rows, _ = tracker.run(WearableParams(**params), msgs)
-    return t, rows["shoulder_flexion_deg"] - np.degrees(theta_fn(t)[:, 0])
+    tr = rows["t"]  # one row per accepted upper-arm sample
+    return tr, rows["shoulder_flexion_deg"] - np.degrees(theta_fn(tr)[:, 0])
 
 
 def static(angle_deg: float) -> Callable[[F64], F64]:
