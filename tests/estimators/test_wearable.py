@@ -321,9 +321,14 @@ def test_bad_samples_are_counted_not_crashing():
     u = u.copy()
     u[2] = np.nan
     msgs[4] = (kind, tt, u, v)
+    k2, t2, u2, v2 = msgs[8]
+    v2 = v2.copy()
+    v2[5] = [500.0, 0.0, 0.0]  # 50 g: beyond a body-worn IMU's range, a glitch
+    msgs[8] = (k2, t2, u2, v2)
     msgs.insert(6, msgs[2])  # a repeated message: time going backwards
     rows, st = tracker.run(WearableParams(), msgs)
     assert st.rejected[f"nonfinite_{kind}"] == 1
+    assert st.rejected[f"out_of_range_{k2}"] == 1
     assert st.rejected[f"time_backwards_{msgs[2][0]}"] == 10
     assert np.isfinite(rows["shoulder_flexion_deg"]).all()
     bad = tracker.feed(
