@@ -25,6 +25,17 @@ def _load_params(path: str | None) -> PipelineParams:
         raise SystemExit(f"rehab: bad parameters in {path}: {exc}") from None
 
 
+def _wearable_params(path: str | None) -> dict[str, object] | None:
+    """The parameter object if it asks for the wearable mode (``"mode": "wearable"``)."""
+    if path is None:
+        return None
+    try:
+        obj = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return None  # reported by _load_params
+    return obj if isinstance(obj, dict) and obj.get("mode") == "wearable" else None
+
+
 def _analyze_one(
     rec: Path, params: PipelineParams, out: Path, device: str | None, progress: bool
 ) -> str:
@@ -60,6 +71,19 @@ def cmd_analyze(args: argparse.Namespace) -> int:
         print(f"rehab analyze: no such recording: {r}", file=sys.stderr)
     if missing:
         return 2
+    wearable = _wearable_params(args.params)
+    if wearable is not None:  # contract §8: the mode is chosen by the parameter file
+        from backend import analysis_wearable
+
+        if len(recs) == 1:
+            return analysis_wearable.cmd_analyze(recs[0], wearable, args.out, args.device)
+        codes = [
+            analysis_wearable.cmd_analyze(
+                r, wearable, str(Path(args.out) / _out_name(r)), args.device
+            )
+            for r in recs
+        ]
+        return max(codes)
     params = _load_params(args.params)
     out = Path(args.out)
     if len(recs) == 1:

@@ -78,6 +78,9 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument(
         "--ideal", action="store_true", help="switch every sensor, robot and placement error off"
     )
+    from simulator import wearable_cli
+
+    wearable_cli.add_arguments(p)
     p.set_defaults(func=run)
     return p
 
@@ -94,6 +97,10 @@ def _zero_gzip_mtime(path: Path) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Simulate and write the three files; print a one-line summary. Returns the exit code."""
+    if getattr(args, "mode", "robot") == "wearable":
+        from simulator import wearable_cli
+
+        return wearable_cli.run(args)
     try:
         cfg = SimConfig(
             seed=args.seed,

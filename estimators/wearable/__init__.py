@@ -1,0 +1,1 @@
+"""Wearable mode: shoulder and elbow joint angles from two IMUs (Alizadegan & Behzadipour 2016)."""

@@ -1,0 +1,227 @@
+"""Wearable mode parameters (contract §8 keys plus the method's constants).
+
+Noise defaults are the paper's table 5: σ_θ̈² = 1 (°/s²)² per 1 ms step, σ_ω² = 0.1 (°/s)²,
+σ_a² = 0.01 (m/s²)², σ_p² = 1e-4 m². The paper's model is ``model="A"`` with
+``gyro_bias=False``; the product's default adds gyro-bias states (see :mod:`.model`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any, Literal
+
+import numpy as np
+
+from estimators.wearable.dh import F64, Geometry, quat_to_matrix
+
+CONTRACT_KEYS = (
+    "mode",
+    "side",
+    "upper_arm_length_m",
+    "forearm_length_m",
+    "upperarm_imu",
+    "forearm_imu",
+    "filter",
+    "model",
+)
+# §4 keys of the robot mode: accepted in a wearable file, not used by this mode
+_ROBOT_KEYS = (
+    "imu_to_elbow_m",
+    "cuff_to_elbow_m",
+    "tolerance_m",
+    "max_outside_fraction",
+    "displacement_norm",
+    "nominal_shoulder_m",
+)
+DEFAULT_QUAT = (0.5, 0.5, 0.5, -0.5)
+MIRROR = np.diag([1.0, -1.0, 1.0])  # S's x–z plane: a left arm is the right one mirrored
+
+
+class WearableParamsError(ValueError):
+    """Parameters that cannot be used (unknown key, wrong type, out of range)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Mounting:
+    """An IMU's pose in its segment (U or F): ``position_m`` (m) and ``quat`` [w, x, y, z]
+    rotating IMU coordinates into the segment's frame."""
+
+    position_m: tuple[float, float, float]
+    quat: tuple[float, float, float, float] = DEFAULT_QUAT
+
+
+def _mirror_mounting(m: Mounting) -> Mounting:
+    """The mirror image through S's x–z plane: position (x, −y, z), rotation M·R·M."""
+    from estimators.wearable.dh import matrix_to_quat
+
+    r = MIRROR @ quat_to_matrix(m.quat) @ MIRROR
+    p = MIRROR @ np.asarray(m.position_m)
+    q = matrix_to_quat(r)
+    return Mounting(
+        (float(p[0]), float(p[1]), float(p[2])),
+        (float(q[0]), float(q[1]), float(q[2]), float(q[3])),
+    )
+
+
+UPPER_DEFAULT = Mounting((0.0, -0.04, -0.24))
+FORE_DEFAULT = Mounting((0.0, -0.03, -0.20))
+
+
+@dataclass(frozen=True, slots=True)
+class WearableParams:
+    """Everything the wearable estimator needs. Angles in the contract's sense (§8).
+
+    For ``side="left"`` the mountings are given in the left arm's own frames (which are the
+    mirror image of the right's, contract §8); the estimator mirrors data and mountings onto
+    a virtual right arm and the positions back. Missing left mountings default to the mirror
+    image of the right defaults (the same anatomical place).
+    """
+
+    side: Literal["right", "left"] = "right"
+    upper_arm_length_m: float = 0.30
+    forearm_length_m: float = 0.25
+    upperarm_imu: Mounting = UPPER_DEFAULT
+    forearm_imu: Mounting = FORE_DEFAULT
+    filter: Literal["ekf", "ukf"] = "ekf"
+    # A: DH model (paper); B: inclinometer/gyro + GM-1 body-acceleration states; C: inclinometer
+    # /gyro, no compensation; "I": inclinometer only (the zero-order model of §3.1).
+    model: Literal["A", "B", "C", "I"] = "A"
+    joints: tuple[int, ...] = (0, 1, 2, 3, 4)  # estimated joints (θ0, θ1, θ2, θ4, θ5); others 0
+    forearm: bool = True  # use the forearm IMU (off: upper-arm joints only)
+    # process noise: σ of the top derivative's increment per ``q_ref_dt_s`` step (paper eq. 4),
+    # scaled with the step (discrete variance ∝ ts) so that 100 Hz and 1 kHz mean the same.
+    sigma_ddtheta_dps2: float = 1.0  # model A (order 2): θ̈ increment, °/s²
+    sigma_dtheta_dps: float = 1.0  # order 1 (B, C): θ̇ increment, °/s
+    sigma_theta_deg: float = 1.0  # order 0 (I): θ increment, °
+    q_ref_dt_s: float = 1e-3
+    sigma_gyr_dps: float = math.sqrt(0.1)
+    sigma_acc_ms2: float = 0.1
+    sigma_pos_m: float = 0.01
+    camera: bool = True  # use camera positions when there are some (σp² = ∞ otherwise)
+    # model B's GM-1 body acceleration (paper ref. 17): correlation time and steady σ
+    body_acc_tau_s: float = 0.2
+    body_acc_sigma_ms2: float = 5.0
+    # product: gyro-bias random constants per IMU (off = the paper's model)
+    gyro_bias: bool = True
+    gyro_bias_sigma_dps: float = 0.5  # prior σ of each bias component
+    gyro_bias_walk_dps_per_sqrt_s: float = 0.002
+    # The EKF's own P is overconfident about the whole arm's turn about the vertical (it takes
+    # information from linearising at a slightly tilted estimate): the reported confidence
+    # adds a drift bound that grows at this rate (a residual gyro bias about the vertical) and
+    # is reset by camera positions of a joint at least ``camera_fix_reach_m`` off the vertical.
+    vertical_drift_dps: float = 0.2
+    camera_fix_reach_m: float = 0.05
+    init_sigma_deg: float = 5.0  # prior σ of each angle at the zero pose (contract §8 "Start")
+    # streams
+    forearm_tolerance_s: float = 0.006  # a forearm sample this close pairs with the upper one
+    forearm_missing_s: float = 0.1  # no forearm sample this long: steps go on without it
+    camera_max_age_s: float = 0.2  # an older camera sample is rejected as stale
+    max_gap_s: float = 0.25  # a longer upper-arm gap restarts the filter
+    rest_s: float = 2.0  # the start at rest checked against the zero pose
+    rest_gyro_dps: float = 20.0
+    mounting_tolerance_deg: float = 20.0  # gravity at rest vs the zero pose's prediction
+    max_gyro_rads: float = 35.0  # ~2000 °/s: a sample beyond it is a glitch, rejected
+    max_acc_ms2: float = 160.0  # ~16 g
+    nis_window: int = 100
+    nis_limit: float = 5.0  # mean normalised innovation per row above this: flag
+    extra: dict[str, Any] = field(default_factory=dict, compare=False)
+
+    def __post_init__(self) -> None:
+        if self.side not in ("right", "left"):
+            raise WearableParamsError(f"side must be 'right' or 'left', not {self.side!r}")
+        if self.filter not in ("ekf", "ukf"):
+            raise WearableParamsError(f"filter must be 'ekf' or 'ukf', not {self.filter!r}")
+        if self.model not in ("A", "B", "C", "I"):
+            raise WearableParamsError(f"model must be A, B or C, not {self.model!r}")
+        for name in ("upper_arm_length_m", "forearm_length_m"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and 0.05 <= v <= 1.0):
+                raise WearableParamsError(f"{name} must be a length in [0.05, 1] m, not {v!r}")
+        if not self.joints or any(j not in range(5) for j in self.joints):
+            raise WearableParamsError(f"joints must be indices 0..4, not {self.joints!r}")
+
+    @property
+    def estimated(self) -> tuple[int, ...]:
+        """Estimated joints: the forearm's (3, 4) only with the forearm IMU."""
+        return tuple(j for j in sorted(set(self.joints)) if self.forearm or j < 3)
+
+    def geometry(self) -> Geometry:
+        """The model's geometry on the (virtual) right arm."""
+        up, fo = self.upperarm_imu, self.forearm_imu
+        if self.side == "left":
+            up, fo = _mirror_mounting(up), _mirror_mounting(fo)
+        return Geometry(
+            self.upper_arm_length_m,
+            self.forearm_length_m,
+            np.asarray(up.position_m, dtype=np.float64),
+            quat_to_matrix(up.quat),
+            np.asarray(fo.position_m, dtype=np.float64),
+            quat_to_matrix(fo.quat),
+        )
+
+    @classmethod
+    def from_json(cls, obj: dict[str, Any], **overrides: Any) -> WearableParams:
+        """Parameters from a contract §8 object; unknown keys are refused."""
+        if not isinstance(obj, dict):
+            raise WearableParamsError("parameters must be a JSON object")
+        mode = obj.get("mode", "wearable")
+        if mode != "wearable":
+            raise WearableParamsError(f"mode must be 'wearable' here, not {mode!r}")
+        unknown = set(obj) - set(CONTRACT_KEYS) - set(_ROBOT_KEYS)
+        if unknown:
+            raise WearableParamsError(f"unknown parameter(s): {', '.join(sorted(unknown))}")
+        kw: dict[str, Any] = {}
+        side = obj.get("side", "right")
+        kw["side"] = side
+        for k in ("upper_arm_length_m", "forearm_length_m"):
+            if k in obj:
+                v = obj[k]
+                if isinstance(v, bool) or not isinstance(v, int | float):
+                    raise WearableParamsError(f"{k} must be a number")
+                kw[k] = float(v)
+        for k in ("filter", "model"):
+            if k in obj:
+                kw[k] = obj[k]
+        for k, default in (("upperarm_imu", UPPER_DEFAULT), ("forearm_imu", FORE_DEFAULT)):
+            if side == "left":
+                default = _mirror_mounting(default)
+            kw[k] = _mounting(k, obj.get(k), default)
+        kw.update(overrides)
+        return replace(cls(), **kw)
+
+
+def _vector(name: str, v: Any, n: int) -> tuple[float, ...]:
+    if (
+        not isinstance(v, list | tuple)
+        or len(v) != n
+        or not all(isinstance(c, int | float) and not isinstance(c, bool) for c in v)
+        or not all(math.isfinite(float(c)) for c in v)
+    ):
+        raise WearableParamsError(f"{name} must be {n} finite numbers")
+    return tuple(float(c) for c in v)
+
+
+def _mounting(name: str, obj: Any, default: Mounting) -> Mounting:
+    if obj is None:
+        return default
+    if not isinstance(obj, dict) or set(obj) - {"position_m", "quat"}:
+        raise WearableParamsError(f"{name} must be {{'position_m': [...], 'quat': [...]}}")
+    pos = _vector(f"{name}.position_m", obj.get("position_m", default.position_m), 3)
+    q = _vector(f"{name}.quat", obj.get("quat", default.quat), 4)
+    norm = math.sqrt(sum(c * c for c in q))
+    if abs(norm - 1.0) > 1e-3:
+        raise WearableParamsError(f"{name}.quat must be a unit quaternion (norm {norm:.4f})")
+    if max(abs(c) for c in pos) > 1.0:
+        raise WearableParamsError(f"{name}.position_m must be within 1 m of its joint")
+    return Mounting((pos[0], pos[1], pos[2]), (q[0], q[1], q[2], q[3]))
+
+
+def mirror_vectors(v: F64) -> F64:
+    """Polar vectors (accelerations, positions) through S's x–z plane, (..., 3)."""
+    return np.asarray(v * np.array([1.0, -1.0, 1.0]), dtype=np.float64)
+
+
+def mirror_rates(v: F64) -> F64:
+    """Angular rates (pseudovectors) through the mirror, in a mirrored sensor frame."""
+    return np.asarray(v * np.array([-1.0, 1.0, -1.0]), dtype=np.float64)

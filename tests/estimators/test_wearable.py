@@ -1,0 +1,388 @@
+"""Wearable estimator (Alizadegan & Behzadipour 2016): kinematics, model, filters, streaming.
+
+Expectations are independent of the estimator's code: contract §8's rotations through scipy,
+IMU readings by numerical differentiation (simulator.wearable_arm), finite differences for the
+Jacobians, the paper's equations for F and the measurement rows.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from estimators.wearable import dh, tracker
+from estimators.wearable.model import Measurement, Model
+from estimators.wearable.params import WearableParams, WearableParamsError
+from simulator.wearable_arm import Mount, imu_readings, joint_positions
+
+DEFAULT_R = Rotation.from_quat([0.5, 0.5, -0.5, 0.5]).as_matrix()  # scipy: [x, y, z, w]
+MU = Mount(np.array([0.0, -0.04, -0.24]), DEFAULT_R)
+MF = Mount(np.array([0.0, -0.03, -0.20]), DEFAULT_R)
+SIG_G = np.radians(np.sqrt(0.1))  # table 5
+SIG_A = 0.1
+
+
+def _motion(amp_deg: tuple[float, ...], freq: float, rest: float = 2.0):
+    """θ(t): at rest in the zero pose for ``rest`` s, then smooth sinusoids (rad)."""
+    amp = np.radians(np.asarray(amp_deg, dtype=float))
+    phase = np.array([0.0, 0.7, 1.3, 0.4, 2.1])
+
+    def fn(t):
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        s = np.clip(t - rest, 0.0, None)
+        ramp = np.where(s < 1.0, s**3 * (10 - 15 * s + 6 * s * s), 1.0)  # smoothstep
+        w = 2 * np.pi * freq * np.array([1.0, 0.8, 0.6, 1.1, 0.9])
+        base = 0.5 * (1 - np.cos(w * s[:, None] + 0 * phase))
+        out = amp * ramp[:, None] * base
+        out[:, 3] = np.abs(out[:, 3])
+        return out
+
+    return fn
+
+
+def _session(fn, fs=100.0, dur=12.0, seed=0, camera=False, cam_sigma=0.01):
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, dur, 1.0 / fs)
+    gu, au = imu_readings(fn, t, 0, MU, 0.30)
+    gf, af = imu_readings(fn, t, 1, MF, 0.30)
+    msgs = []
+    n = 10
+    for k in range(0, len(t), n):
+        sl = slice(k, k + n)
+        msgs.append(
+            (
+                "upperarm",
+                t[sl],
+                gu[sl] + rng.normal(0, SIG_G, gu[sl].shape),
+                au[sl] + rng.normal(0, SIG_A, au[sl].shape),
+            )
+        )
+        msgs.append(
+            (
+                "forearm",
+                t[sl],
+                gf[sl] + rng.normal(0, SIG_G, gf[sl].shape),
+                af[sl] + rng.normal(0, SIG_A, af[sl].shape),
+            )
+        )
+        if camera:
+            tc = t[sl][::3]
+            e, w = joint_positions(fn(tc), 0.30, 0.25)
+            msgs.append(
+                (
+                    "camera",
+                    tc,
+                    e + rng.normal(0, cam_sigma, e.shape),
+                    w + rng.normal(0, cam_sigma, w.shape),
+                )
+            )
+    return t, msgs
+
+
+def _rand_theta(rng):
+    return rng.uniform(-1.4, 1.4, 5)
+
+
+def test_dh_chain_is_the_contract_rotations():
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        th = _rand_theta(rng)
+        ps = dh.pose(th, 0.3, 0.25)
+        su = Rotation.from_euler("YXZ", [-th[0], -th[1], th[2]])
+        sf = su * Rotation.from_euler("YZ", [-th[3], th[4]])
+        np.testing.assert_allclose(ps.R_SU, su.as_matrix(), atol=1e-12)
+        np.testing.assert_allclose(ps.R_SF, sf.as_matrix(), atol=1e-12)
+        np.testing.assert_allclose(ps.elbow, su.apply([0, 0, -0.3]), atol=1e-12)
+        np.testing.assert_allclose(
+            ps.wrist, su.apply([0, 0, -0.3]) + sf.apply([0, 0, -0.25]), atol=1e-12
+        )
+
+
+def test_dh_row_is_eq10():
+    r, p = dh.dh(0.3, 0.2, -0.7, 0.1)
+    h = np.eye(4)
+    for m in (
+        Rotation.from_euler("z", 0.3),
+        [0, 0, 0.2],
+        Rotation.from_euler("x", -0.7),
+        [0.1, 0, 0],
+    ):
+        step = np.eye(4)
+        if isinstance(m, Rotation):
+            step[:3, :3] = m.as_matrix()
+        else:
+            step[:3, 3] = m
+        h = h @ step
+    np.testing.assert_allclose(r, h[:3, :3], atol=1e-12)
+    np.testing.assert_allclose(p, h[:3, 3], atol=1e-12)
+
+
+def test_default_mounting_and_zero_pose_reading():
+    # contract §8: IMU x along the segment toward the distal joint, y forward, z lateral (−y_S)
+    R = dh.quat_to_matrix((0.5, 0.5, 0.5, -0.5))
+    np.testing.assert_allclose(R[:, 0], [0, 0, -1], atol=1e-12)
+    np.testing.assert_allclose(R[:, 1], [1, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(R[:, 2], [0, -1, 0], atol=1e-12)
+    geo = WearableParams().geometry()
+    s = dh.sensors(np.zeros(5), np.zeros(5), np.zeros(5), geo, jacobian=False)
+    np.testing.assert_allclose(s.acc_u, [-9.81, 0, 0], atol=1e-12)  # x points down
+    np.testing.assert_allclose(s.acc_f, [-9.81, 0, 0], atol=1e-12)
+
+
+def test_predicted_readings_match_differentiated_motion():
+    """Eqs. 12–18 against readings obtained by differentiating positions and rotations."""
+    fn = _motion((60, 30, 40, 80, 50), 0.7, rest=0.0)
+    geo = WearableParams().geometry()
+    t = np.array([0.3, 1.1, 2.7])
+    gu, au = imu_readings(fn, t, 0, MU, 0.30)
+    gf, af = imu_readings(fn, t, 1, MF, 0.30)
+    h = 1e-4
+    for k, tk in enumerate(t):
+        th = fn(tk)[0]
+        d = (fn(tk + h)[0] - fn(tk - h)[0]) / (2 * h)
+        dd = (fn(tk + h)[0] - 2 * th + fn(tk - h)[0]) / h**2
+        s = dh.sensors(th, d, dd, geo, jacobian=False)
+        np.testing.assert_allclose(s.gyr_u, gu[k], atol=1e-6)
+        np.testing.assert_allclose(s.gyr_f, gf[k], atol=1e-6)
+        np.testing.assert_allclose(s.acc_u, au[k], atol=1e-4)
+        np.testing.assert_allclose(s.acc_f, af[k], atol=1e-4)
+
+
+@pytest.mark.parametrize("model", ["A", "B", "C", "I"])
+def test_jacobian_matches_finite_differences(model):
+    p = WearableParams(model=model)
+    mdl = Model.build(p)
+    rng = np.random.default_rng(3)
+    x = rng.normal(0, 0.8, mdl.n)
+    m = Measurement(np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3))
+    _, H = mdl.predict_rows(x, m)
+    Hn = np.empty_like(H)
+    for i in range(mdl.n):
+        e = np.zeros(mdl.n)
+        e[i] = 1e-6
+        Hn[:, i] = (
+            mdl.predict_rows(x + e, m, False)[0] - mdl.predict_rows(x - e, m, False)[0]
+        ) / 2e-6
+    np.testing.assert_allclose(H, Hn, atol=1e-6)
+
+
+def test_process_model_eq3_eq4():
+    p = WearableParams(gyro_bias=False)
+    mdl = Model.build(p)
+    ts = 0.01
+    f, q = mdl.transition(ts)
+    x = np.random.default_rng(0).normal(size=15)
+    dd, d, th = x[:5], x[5:10], x[10:]
+    y = f @ x
+    np.testing.assert_allclose(y[:5], dd)  # GM-1 joint acceleration, eq. 3 first block row
+    np.testing.assert_allclose(y[5:10], d + ts * dd)
+    np.testing.assert_allclose(y[10:], th + ts * d + 0.5 * ts**2 * dd)
+    # eq. 4: noise on θ̈ only, σ² = 1 (°/s²)² per 1 ms step (table 5), scaled with the step
+    np.testing.assert_allclose(np.diag(q)[:5], np.radians(1.0) ** 2 * 10)
+    assert not np.diag(q)[5:].any()
+
+
+def test_camera_rows_are_left_out_without_camera():
+    mdl = Model.build(WearableParams())
+    z3 = np.zeros(3)
+    z, r = mdl.rows(Measurement(z3, z3, z3, z3))
+    assert len(z) == 12 and len(r) == 12
+    z, r = mdl.rows(Measurement(z3, z3, z3, z3, z3, z3))
+    assert len(z) == 18
+    np.testing.assert_allclose(r[12:], 1e-4)  # σp² of table 5
+    np.testing.assert_allclose(r[:3], np.radians(np.sqrt(0.1)) ** 2)
+
+
+def test_params_from_json_contract_keys_and_refusals():
+    p = WearableParams.from_json(
+        {
+            "mode": "wearable",
+            "side": "right",
+            "upper_arm_length_m": 0.31,
+            "forearm_length_m": 0.26,
+            "filter": "ukf",
+            "model": "B",
+            "upperarm_imu": {"position_m": [0.0, -0.05, -0.2], "quat": [0.5, 0.5, 0.5, -0.5]},
+        }
+    )
+    assert p.filter == "ukf" and p.model == "B" and p.upper_arm_length_m == 0.31
+    assert p.upperarm_imu.position_m == (0.0, -0.05, -0.2)
+    for bad in (
+        {"side": "up"},
+        {"model": "D"},
+        {"filter": "pf"},
+        {"upper_arm_length_m": "x"},
+        {"upperarm_imu": {"quat": [1, 1, 0, 0]}},
+        {"bogus": 1},
+        {"mode": "robot"},
+    ):
+        with pytest.raises(WearableParamsError):
+            WearableParams.from_json(bad)
+    left = WearableParams.from_json({"side": "left"})
+    assert left.upperarm_imu.position_m == (0.0, 0.04, -0.24)
+
+
+def _rmse(a, b):
+    return float(np.sqrt(np.nanmean((a - b) ** 2)))
+
+
+def test_tracks_a_two_segment_motion_at_100hz():
+    fn = _motion((50, 20, 30, 70, 40), 0.4)
+    t, msgs = _session(fn, dur=10.0)
+    rows, st = tracker.run(WearableParams(), msgs)
+    assert len(rows["t"]) == len(t)
+    truth = np.degrees(fn(t))
+    names = tracker.COLUMNS[1:6]
+    errs = [_rmse(rows[c][t > 2], truth[t > 2, i]) for i, c in enumerate(names)]
+    assert errs[0] < 2.0 and errs[3] < 2.0, errs  # flexions: gravity + body acceleration
+    assert max(errs) < 6.0, errs
+    e, _ = joint_positions(fn(t), 0.30, 0.25)
+    assert np.nanmax(np.abs(rows["elbow_x"] - e[:, 0])) < 0.05
+    assert not st.rejected.get("forearm_missing")
+
+
+def test_model_a_beats_uncompensated_models_with_body_acceleration():
+    """Table 6's ordering on a fast one-segment flexion with the IMU near the elbow."""
+
+    def fn(t):
+        t = np.atleast_1d(t)
+        out = np.zeros((len(t), 5))
+        out[:, 0] = np.radians(90) * np.sin(2 * np.pi * t)
+        return out
+
+    rng = np.random.default_rng(5)
+    t = np.arange(0, 6, 0.01)
+    gu, au = imu_readings(fn, t, 0, MU, 0.30)
+    gu = gu + rng.normal(0, SIG_G, gu.shape)
+    au = au + rng.normal(0, SIG_A, au.shape)
+    err = {}
+    for model in "ABC":
+        p = WearableParams(model=model, joints=(0,), forearm=False, gyro_bias=False)
+        rows, _ = tracker.run(p, [("upperarm", t, gu, au)])
+        err[model] = _rmse(rows["shoulder_flexion_deg"][t > 2], np.degrees(fn(t)[t > 2, 0]))
+    assert err["A"] < 0.6 < err["B"] < err["C"], err
+
+
+def test_streaming_equals_batch():
+    fn = _motion((40, 20, 20, 60, 30), 0.5)
+    _, msgs = _session(fn, dur=5.0, camera=True)
+    p = WearableParams()
+    batch, st_b = tracker.run(p, msgs)
+    state = tracker.initial_state(p)
+    parts = []
+    for kind, tt, u, v in msgs:  # and each message cut into single samples
+        for i in range(len(tt)):
+            r, state = tracker.feed(p, state, kind, tt[i : i + 1], u[i : i + 1], v[i : i + 1])
+            parts.append(r)
+    r, state = tracker.flush(p, state)
+    parts.append(r)
+    stream = tracker.concat(parts)
+    for c in (*tracker.COLUMNS, *tracker.STD_COLUMNS, "flags"):
+        np.testing.assert_array_equal(stream[c], batch[c])
+    assert st_b.rejected == state.rejected
+
+
+def test_left_arm_is_the_mirror_image():
+    fn = _motion((40, 25, 20, 60, 30), 0.5)
+    _, msgs = _session(fn, dur=6.0, camera=True)
+    right, _ = tracker.run(WearableParams(), msgs)
+    flip_v = np.array([1.0, -1.0, 1.0])
+    flip_w = np.array([-1.0, 1.0, -1.0])
+    mirrored = []
+    for kind, tt, u, v in msgs:
+        if kind == "camera":
+            mirrored.append((kind, tt, u * flip_v, v * flip_v))
+        else:  # a left IMU mounted as the mirror image: x, −y, z for vectors, pseudovector rates
+            mirrored.append((kind, tt, u * flip_w, v * flip_v))
+    left, _ = tracker.run(WearableParams.from_json({"side": "left"}), mirrored)
+    for c in tracker.COLUMNS[1:6]:
+        np.testing.assert_allclose(left[c], right[c], atol=1e-6)
+    np.testing.assert_allclose(left["elbow_y"], -right["elbow_y"], atol=1e-9)
+    np.testing.assert_allclose(left["wrist_x"], right["wrist_x"], atol=1e-9)
+
+
+def test_missing_forearm_is_flagged_and_empty():
+    fn = _motion((40, 10, 10, 60, 20), 0.5)
+    t, msgs = _session(fn, dur=4.0)
+    only_upper = [m for m in msgs if m[0] == "upperarm"]
+    rows, st = tracker.run(WearableParams(), only_upper)
+    assert len(rows["t"]) == len(t)
+    assert np.isnan(rows["elbow_flexion_deg"]).all() and np.isnan(rows["wrist_x"]).all()
+    assert np.isfinite(rows["shoulder_flexion_deg"]).all()
+    assert (rows["flags"].astype(int) & tracker.FOREARM_MISSING).all()
+    assert st.rejected["forearm_missing"] == len(t)
+
+
+def test_bad_samples_are_counted_not_crashing():
+    fn = _motion((40, 10, 10, 60, 20), 0.5)
+    _, msgs = _session(fn, dur=3.0)
+    kind, tt, u, v = msgs[4]
+    u = u.copy()
+    u[2] = np.nan
+    msgs[4] = (kind, tt, u, v)
+    k2, t2, u2, v2 = msgs[8]
+    v2 = v2.copy()
+    v2[5] = [500.0, 0.0, 0.0]  # 50 g: beyond a body-worn IMU's range, a glitch
+    msgs[8] = (k2, t2, u2, v2)
+    msgs.insert(6, msgs[2])  # a repeated message: time going backwards
+    rows, st = tracker.run(WearableParams(), msgs)
+    assert st.rejected[f"nonfinite_{kind}"] == 1
+    assert st.rejected[f"out_of_range_{k2}"] == 1
+    assert st.rejected[f"time_backwards_{msgs[2][0]}"] == 10
+    assert np.isfinite(rows["shoulder_flexion_deg"]).all()
+    bad = tracker.feed(
+        WearableParams(),
+        tracker.initial_state(WearableParams()),
+        "upperarm",
+        np.zeros(3),
+        np.zeros((2, 3)),
+        np.zeros((3, 3)),
+    )[1]
+    assert bad.rejected["shape_upperarm"] == 1
+
+
+def test_mounting_that_does_not_fit_is_flagged():
+    fn = _motion((40, 10, 10, 60, 20), 0.5)
+    _, msgs = _session(fn, dur=4.0)
+    # the parameters claim the upper-arm IMU's x points forward, the data say down
+    wrong = WearableParams.from_json(
+        {"upperarm_imu": {"position_m": [0, -0.04, -0.24], "quat": [1.0, 0.0, 0.0, 0.0]}}
+    )
+    rows, st = tracker.run(wrong, msgs)
+    assert st.rejected["mounting_mismatch_upperarm"] == 1
+    late = rows["t"] >= 2.0
+    assert np.isnan(rows["shoulder_flexion_deg"][late]).all()
+    assert (rows["flags"][late].astype(int) & tracker.MOUNTING_MISMATCH).all()
+
+
+def test_confidence_is_honest_about_the_vertical_without_camera():
+    # at rest the gyros' bias about the vertical cannot be told from a slow turn of the arm
+    fn = _motion((0, 0, 0, 0, 0), 0.3)
+    t, msgs = _session(fn, dur=10.0)
+    rows, _ = tracker.run(WearableParams(), msgs)
+    v = rows["vertical_std_deg"]
+    k5 = np.searchsorted(t, 5.0)
+    assert np.all(np.diff(v[k5::100]) > 0)  # it only grows, at least as fast as a 0.1 °/s bias
+    assert v[-1] - v[k5] > 0.1 * (t[-1] - t[k5])
+    assert v[-1] > 5.0 * rows["elbow_flexion_std_deg"][-1]  # gravity keeps the flexion
+    # moving, with a camera: the turn is seen, its σ stays far below the camera-less one
+    fn = _motion((50, 20, 20, 60, 30), 0.3)
+    t, msgs = _session(fn, dur=10.0)
+    no_cam, _ = tracker.run(WearableParams(), msgs)
+    t, msgs = _session(fn, dur=10.0, camera=True)
+    cam, _ = tracker.run(WearableParams(), msgs)
+    assert cam["vertical_std_deg"][-1] < 0.5 * no_cam["vertical_std_deg"][-1]
+
+
+def test_camera_dropout_and_stale_samples():
+    fn = _motion((40, 20, 20, 60, 30), 0.5)
+    _, msgs = _session(fn, dur=6.0, camera=True)
+    late = [m for m in msgs if m[0] != "camera"]
+    cams = [m for m in msgs if m[0] == "camera"]
+    # camera messages held back 0.5 s: stale when they come
+    mixed = late[:60] + cams[:30] + late[60:] + cams[30:]
+    rows, st = tracker.run(WearableParams(), mixed)
+    assert st.rejected["camera_stale"] > 0
+    assert np.isfinite(rows["shoulder_flexion_deg"]).all()
+    assert ((rows["flags"].astype(int) & tracker.CAMERA_USED) > 0).sum() > 0
