@@ -21,11 +21,12 @@ import pytest
 from fhir.resources.R4B.bundle import Bundle
 from mcap.reader import make_reader
 from PIL import Image
+from sqlalchemy import update
 
 from backend import recording
 from backend.analysis import read_estimates
 from backend.cli import main
-from backend.db.sessions import set_recording_path
+from backend.db.models import Session as SessionRow
 from backend.deps import AppState
 from backend.exports import ExportMeta, fhir, mcap_file, pdf
 from backend.settings import Settings
@@ -363,7 +364,7 @@ async def test_rest_exports_are_guarded_and_audited(
     dest.parent.mkdir(parents=True, exist_ok=True)
     shutil.copy(analysed.recording, dest)
     async with state.database.transaction() as db:
-        await set_recording_path(db, sid, rel)
+        await db.execute(update(SessionRow).where(SessionRow.id == sid).values(recording_path=rel))
 
     base = f"/api/sessions/{sid}"
     for path in ("report.pdf", "fhir", "recording.mcap"):
