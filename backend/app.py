@@ -25,6 +25,7 @@ from backend.db.devices import mark_all_devices_offline
 from backend.db.engine import Database
 from backend.db.sessions import interrupt_active_sessions
 from backend.deps import AppState
+from backend.live.gateway import make_live
 from backend.live.manager import LiveManager
 from backend.routers import api_router, exports, live
 from backend.routers import viz as viz_router
@@ -77,7 +78,7 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         #      then runs one worker per device; it implements backend.deps.LiveHooks).
         #      `rehab serve` requires Zenoh; elsewhere (tests, tools) a busy endpoint
         #      leaves the service running without live data, with an error logged.
-        manager = LiveManager(settings, state.database, state.interrupted_sessions)
+        manager = make_live(settings, state.database, state.interrupted_sessions)
         await manager.start(require_zenoh=getattr(app.state, "live_required", False))
         state.live = manager
         # ---- [live] 3. viser server starts here.

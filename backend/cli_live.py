@@ -99,7 +99,27 @@ def add_parser(sub: Any) -> None:
         metavar="ENDPOINT",
         help="be a client of the Zenoh router at ENDPOINT (REHAB_ZENOH_CONNECT)",
     )
+    s.add_argument(
+        "--workers",
+        type=int,
+        metavar="N",
+        help="worker processes running the pipelines (default: the core count; 0: API only, "
+        "for workers started elsewhere with `rehab worker`; REHAB_WORKERS)",
+    )
     s.set_defaults(func=cmd_serve)
+
+    w = sub.add_parser(
+        "worker",
+        help="run the pipelines of the devices this process leases (docs/scaling.md)",
+        description="A worker: takes device leases in the database, subscribes to their "
+        "data on Zenoh, records them and publishes estimates and feedback. Joins the API "
+        "node's Zenoh router (--zenoh-connect) and its database (--database-url); "
+        "recordings go to --data-dir, which every node must share.",
+    )
+    _common(w)
+    w.add_argument("--zenoh-connect", metavar="ENDPOINT", help="the Zenoh router to join")
+    w.add_argument("--max-devices", type=int, default=0, metavar="N", help="0: no limit")
+    w.set_defaults(func=cmd_worker, zenoh_listen=None)
 
     d = sub.add_parser(
         "demo",
@@ -126,9 +146,13 @@ def cmd_serve(args: argparse.Namespace) -> int:
     import uvicorn
 
     from backend.app import create_app
+    from backend.live.gateway import default_workers
 
     logging.basicConfig(level=args.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
     settings = settings_from_args(args)
+    if args.workers is not None or settings.workers is None:
+        workers = default_workers() if args.workers is None else args.workers
+        settings = settings.model_copy(update={"workers": workers})
     app = create_app(settings)
     app.state.live_required = True  # a service that cannot open Zenoh must not pretend
     uvicorn.run(
@@ -140,6 +164,28 @@ def cmd_serve(args: argparse.Namespace) -> int:
         ws_per_message_deflate=settings.ws_compression,
     )
     return 0
+
+
+def cmd_worker(args: argparse.Namespace) -> int:
+    from backend.live.node import run_worker
+
+    logging.basicConfig(level=args.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
+    settings = settings_from_args(args)
+    if not settings.zenoh_connect:
+        log.error("rehab worker needs --zenoh-connect (the API node's or a router's endpoint)")
+        return 2
+    _set_title("rehab worker")
+    asyncio.run(run_worker(settings, args.max_devices))
+    return 0
+
+
+def _set_title(title: str) -> None:
+    """The process title (ps, top): its command line says ``-m backend.cli worker``."""
+    try:
+        import setproctitle
+    except ImportError:
+        return
+    setproctitle.setproctitle(title)
 
 
 # --------------------------------------------------------------------------- demo

@@ -73,6 +73,12 @@ class Settings(BaseSettings):
         "but a few per cent of the live loop's CPU at 50 devices.",
     )
     device_offline_after_s: float = Field(default=5.0, gt=0)
+    workers: int | None = Field(
+        default=None,
+        ge=0,
+        description="Worker processes the API node starts (`rehab serve --workers`; 0: API "
+        "only, remote workers); unset: one process runs everything (tests, the demo).",
+    )
 
     # 3D view (viser, backend/viz.py): its own HTTP/WebSocket port, started on first use.
     viser_enabled: bool = True

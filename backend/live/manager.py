@@ -12,7 +12,7 @@ import gc
 import logging
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -82,6 +82,10 @@ class LiveManager:
         self._idle_params = PipelineParams()
         self._idle_status = Pipeline(self._idle_params).status()
         self.viz: Any = None  # the 3D view (backend.viz.Viz), set by the app once created
+        # how the Zenoh session is opened (a worker filters keys, an API node takes no data)
+        self._zio_accept: Callable[[str], bool] | None = None
+        self._zio_subscribe = True
+        self._zio_mode: str | None = None
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -93,7 +97,9 @@ class LiveManager:
         s = self.settings
         if s.zenoh_listen or s.zenoh_connect:
             config = make_config(
-                listen=None if s.zenoh_connect else s.zenoh_listen, connect=s.zenoh_connect
+                listen=None if s.zenoh_connect else s.zenoh_listen,
+                connect=s.zenoh_connect,
+                mode=self._zio_mode,
             )
             zio = ZenohIO(
                 config,
@@ -102,6 +108,8 @@ class LiveManager:
                 self._on_batch,
                 self._on_token,
                 MAX_PAYLOAD_BYTES,
+                accept=self._zio_accept,
+                subscribe=self._zio_subscribe,
             )
             try:
                 zio.open()

@@ -1,0 +1,234 @@
+"""The API node of a scaled-out service (``rehab serve --workers N``).
+
+It keeps REST, the WebSockets and the device registry (the ``devices`` table the workers
+write), and runs no pipeline: devices' data goes to the workers through its Zenoh router.
+
+- Sessions: the REST layer still calls :class:`backend.deps.LiveHooks`; here each call is a
+  Zenoh query on ``<prefix>/@ctl/<device>``, answered by the one worker holding the device.
+  Without a holder (no data yet), a start still succeeds: the session is in the database and
+  the worker that takes the device runs it (workers follow the database every second).
+- WebSockets: fed with the dashboard messages the workers publish on ``<prefix>/@feed/*``,
+  like any other Zenoh subscriber.
+- Local workers: ``N`` child processes (``rehab worker``), killed with the node.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+import orjson
+import zenoh
+
+from backend.db.engine import Database
+from backend.deps import LiveUnavailable, Point, SessionInfo
+from backend.live import files
+from backend.live.hub import Client
+from backend.live.manager import COMMAND_TIMEOUT_S, LiveManager
+from backend.live.node import control_key, feed_key
+from backend.settings import Settings
+
+log = logging.getLogger(__name__)
+
+
+def _die_with_parent() -> None:  # pragma: no cover (runs in the child before exec)
+    import ctypes
+
+    PR_SET_PDEATHSIG = 1
+    ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+
+
+def local_endpoint(listen: str) -> str:
+    """Where a child worker reaches this node's Zenoh listener."""
+    proto, _, addr = listen.partition("/")
+    host, _, port = addr.rpartition(":")
+    if host in ("0.0.0.0", "[::]", ""):
+        host = "127.0.0.1"
+    return f"{proto}/{host}:{port}"
+
+
+def worker_command(settings: Settings, endpoint: str) -> list[str]:
+    return [
+        sys.executable,
+        "-m",
+        "backend.cli",
+        "worker",
+        "--zenoh-connect",
+        endpoint,
+        "--database-url",
+        settings.db_url,
+        "--data-dir",
+        str(settings.data_dir),
+    ]
+
+
+class Gateway(LiveManager):
+    def __init__(
+        self,
+        settings: Settings,
+        database: Database,
+        interrupted: Sequence[int] = (),
+        workers: int = 0,
+    ) -> None:
+        super().__init__(settings, database, interrupted)
+        self._zio_subscribe = False
+        self._zio_mode = "router" if not settings.zenoh_connect else None
+        self.n_workers = workers
+        self.children: list[subprocess.Popen[bytes]] = []
+        self.last_status: dict[str, str] = {}
+        self.session_of: dict[str, int | None] = {}
+        self._feed_sub: Any = None
+
+    async def start(self, require_zenoh: bool = False) -> None:
+        await super().start(require_zenoh=require_zenoh)
+        loop = asyncio.get_running_loop()
+        if self.zio is not None and self.zio.session is not None:
+
+            def on_feed(sample: zenoh.Sample) -> None:
+                loop.call_soon_threadsafe(self._on_feed, sample.payload.to_bytes())
+
+            self._feed_sub = self.zio.session.declare_subscriber(feed_key(self.prefix), on_feed)
+        listen = self.settings.zenoh_listen
+        if self.n_workers and listen and not self.settings.zenoh_connect:
+            cmd = worker_command(self.settings, local_endpoint(listen))
+            for _ in range(self.n_workers):
+                self.children.append(subprocess.Popen(cmd, preexec_fn=_die_with_parent))
+            log.info("%d local workers started", self.n_workers)
+
+    async def close(self) -> None:
+        for child in self.children:
+            with contextlib.suppress(ProcessLookupError):
+                child.send_signal(signal.SIGTERM)
+        for child in self.children:
+            try:
+                await asyncio.to_thread(child.wait, 20)
+            except subprocess.TimeoutExpired:
+                child.kill()
+        self.children.clear()
+        if self._feed_sub is not None:
+            self._feed_sub.undeclare()
+            self._feed_sub = None
+        await super().close()
+
+    # ------------------------------------------------------------------ WebSockets
+
+    def _on_feed(self, data: bytes) -> None:
+        try:
+            msg = orjson.loads(data)
+            device = msg["device"]
+        except (orjson.JSONDecodeError, KeyError, TypeError):
+            return
+        text = data.decode("utf-8")
+        sid = self.session_of.get(device)
+        if msg.get("type") == "status":
+            self.last_status[device] = text
+            sid = self.session_of[device] = msg.get("session_id")
+        for c in list(self.hub.clients):
+            if c.overlay is None and c.wants(device, sid):
+                c.send(text)
+
+    def send_initial(self, client: Client) -> None:
+        for name, text in sorted(self.last_status.items()):
+            if client.overlay is None and client.wants(name, self.session_of.get(name)):
+                client.send(text)
+
+    def device_names(self) -> list[str]:
+        return sorted(set(self.stats) | set(self.last_status))
+
+    def changed(self, name: str) -> None:
+        pass  # the workers send the statuses
+
+    def _touch(self, names: Sequence[str], offline: bool = False) -> None:
+        pass  # the workers write the registry of the devices they hold
+
+    def _each_second(self) -> None:
+        pass
+
+    # ------------------------------------------------------------------ LiveHooks
+
+    def _query(self, device: str, body: dict[str, Any]) -> dict[str, Any] | None:
+        session = self.zio.session if self.zio is not None else None
+        if session is None:
+            raise LiveUnavailable("no Zenoh session")
+        replies = session.get(
+            control_key(self.prefix, device),
+            payload=orjson.dumps(body),
+            target=zenoh.QueryTarget.ALL,
+            timeout=COMMAND_TIMEOUT_S,
+        )
+        for reply in replies:
+            if reply.ok is not None:
+                answer: dict[str, Any] = orjson.loads(reply.ok.payload.to_bytes())
+                return answer
+        return None
+
+    async def _ask(self, device: str, body: dict[str, Any]) -> tuple[bool, Any]:
+        """(a worker answered, its result); raises its refusal."""
+        answer = await asyncio.to_thread(self._query, device, body)
+        if answer is None:
+            return False, None
+        if not answer.get("ok"):
+            raise LiveUnavailable(str(answer.get("error")))
+        return True, answer.get("result")
+
+    async def session_started(self, session: SessionInfo) -> str | None:
+        body = {
+            "op": "start",
+            "session": {
+                "id": session.id,
+                "patient_id": session.patient_id,
+                "params": dict(session.params),
+                "started_at": session.started_at.isoformat(),
+                "recording_path": session.recording_path,
+            },
+            "patient": await self._patient_code(session.patient_id),
+        }
+        answered, result = await self._ask(session.device, body)
+        if not answered:
+            log.info("session %s: no worker holds %s yet", session.id, session.device)
+        return str(result) if answered and result else files.recording_relpath(session.id)
+
+    async def session_stopped(self, session: SessionInfo) -> dict[str, Any] | None:
+        answered, result = await self._ask(session.device, {"op": "stop", "session_id": session.id})
+        if answered and isinstance(result, dict):
+            return result
+        return None
+
+    async def set_nominal_shoulder(
+        self, session: SessionInfo, point: Point | None, from_estimate: bool
+    ) -> Point | None:
+        pt = None if point is None else [float(x) for x in point]
+        body = {"op": "nominal", "session_id": session.id, "point": pt}
+        answered, result = await self._ask(session.device, {**body, "from_estimate": from_estimate})
+        if not answered:
+            raise LiveUnavailable("no worker holds the device")
+        return None if result is None else [float(x) for x in result]
+
+    def live_report(self, session_id: int, device: str) -> dict[str, Any] | None:
+        return None
+
+    def is_running(self, session_id: int, device: str) -> bool:
+        return self.session_of.get(device) == session_id
+
+    def flush_session(self, session_id: int, device: str) -> None:
+        pass  # the holder flushes every 0.25 s
+
+
+def make_live(
+    settings: Settings, database: Database, interrupted: Sequence[int] = ()
+) -> LiveManager:
+    """One process for everything (``workers`` unset: tests, the demo) or an API node."""
+    if settings.workers is None:
+        return LiveManager(settings, database, interrupted)
+    return Gateway(settings, database, interrupted, workers=settings.workers)
+
+
+def default_workers() -> int:
+    return os.cpu_count() or 1
