@@ -383,6 +383,9 @@ class DeviceRun:
         durations = [c["end"] - c["start"] for c in self.cycles]
         quality = p.quality.as_dict()
         quality["rejected"] = {**quality["rejected"]}
+        # by time: the pipeline notes a robot gap when polled, an IMU gap when fed, so the
+        # list's order followed the polls (a live run, a takeover's replay, an analysis)
+        quality["gaps"] = sorted(quality.get("gaps", []), key=lambda g: (g["t"], g["stream"]))
         for k, n in self.decode_rejected.items():
             quality["rejected"][k] = quality["rejected"].get(k, 0) + n
         return {

@@ -85,6 +85,7 @@ class Gateway(LiveManager):
         self.last_status: dict[str, str] = {}
         self.session_of: dict[str, int | None] = {}
         self._feed_sub: Any = None
+        self._command: list[str] = []
 
     async def start(self, require_zenoh: bool = False) -> None:
         await super().start(require_zenoh=require_zenoh)
@@ -95,14 +96,31 @@ class Gateway(LiveManager):
                 loop.call_soon_threadsafe(self._on_feed, sample.payload.to_bytes())
 
             self._feed_sub = self.zio.session.declare_subscriber(feed_key(self.prefix), on_feed)
-        listen = self.settings.zenoh_listen
-        if self.n_workers and listen and not self.settings.zenoh_connect:
-            cmd = worker_command(self.settings, local_endpoint(listen))
+        s = self.settings
+        # the children join this node's router, or the router this node is a client of
+        endpoint = s.zenoh_connect or (local_endpoint(s.zenoh_listen) if s.zenoh_listen else None)
+        if self.n_workers and endpoint and self.zio is not None:
+            self._command = worker_command(s, endpoint)
             for _ in range(self.n_workers):
-                self.children.append(subprocess.Popen(cmd, preexec_fn=_die_with_parent))
+                self.children.append(self._spawn())
+            self._tasks.append(asyncio.create_task(self._supervise(), name="workers"))
             log.info("%d local workers started", self.n_workers)
 
+    def _spawn(self) -> subprocess.Popen[bytes]:
+        return subprocess.Popen(self._command, preexec_fn=_die_with_parent)
+
+    async def _supervise(self) -> None:
+        """A local worker that died is started again (its devices moved on meanwhile)."""
+        while True:
+            await asyncio.sleep(1.0)
+            for i, child in enumerate(self.children):
+                if child.poll() is not None:
+                    log.error("worker %d ended (%s); starting another", child.pid, child.returncode)
+                    self.children[i] = self._spawn()
+
     async def close(self) -> None:
+        for task in self._tasks:
+            task.cancel()
         for child in self.children:
             with contextlib.suppress(ProcessLookupError):
                 child.send_signal(signal.SIGTERM)

@@ -39,9 +39,9 @@ from sqlalchemy.ext.asyncio import AsyncSession
 
 from backend.db.models import DeviceLease
 
-TTL_S = 1.0  # a dead worker's devices are free this long after its last renewal
-RENEW_S = 0.2  # renewal (and free-device) period
-MARGIN_S = 0.3  # a holder stops this long before its row can expire (skew, a late put)
+TTL_S = 0.8  # a dead worker's devices are free this long after its last renewal
+RENEW_S = 0.15  # renewal (and free-device) period
+MARGIN_S = 0.25  # a holder stops this long before its row can expire (skew, a late put)
 RANK_DELAY_S = 0.3  # the n-th choice of rendezvous hashing tries n × this late
 
 

@@ -326,7 +326,7 @@ class LiveManager:
             # each session's files every FLUSH_S, a share of the sessions per tick: all of
             # them at once held the loop for tens of milliseconds at 50 devices
             for i, w in enumerate(self.workers.values()):
-                if w.live.files is not None and i % every == n % every:
+                if w.live.files is not None and i % every == n % every and w.alive():
                     try:
                         w.live.files.flush()
                     except OSError:

@@ -240,8 +240,7 @@ class WorkerNode(LiveManager):
         if w is None:
             w = super()._worker_for(name)
             if w is not None:
-                w.alive = lambda: self.held.valid(name)
-                w.fence = (name, self.held.holder, self.held.epochs[name])
+                w.set_lease(self.held.holder, self.held.epochs[name], lambda: self.held.valid(name))
         return w
 
     def _device_stats(self, name: str) -> DeviceStats | None:
@@ -285,6 +284,7 @@ class WorkerNode(LiveManager):
         sent_mono, sent_wall = time.monotonic(), time.time()
         async with self.database.transaction() as db:
             kept = await lease.renew(db, self.held.holder, sent_wall)
+            rows = await lease.table(db)  # to try only the free ones: one read, not a write each
         for name in list(self.held.epochs):
             if kept.get(name) != self.held.epochs[name]:
                 self._lose(name, "lease not renewed")
@@ -305,6 +305,9 @@ class WorkerNode(LiveManager):
                 self._first_unheld.pop(name, None)
                 continue
             first = self._first_unheld.setdefault(name, now)
+            row = rows.get(name)
+            if row is not None and row[2] > sent_wall:
+                continue  # held by another
             if now - first < lease.rank(name, self.held.holder, workers) * lease.RANK_DELAY_S:
                 continue
             sent_mono, sent_wall = time.monotonic(), time.time()
@@ -382,6 +385,21 @@ class WorkerNode(LiveManager):
                 await self._stop(w, running)
 
     async def _take_session(self, w: DeviceWorker, info: SessionInfo, patient: str | None) -> None:
+        """Start (or take over) ``info`` on ``w``, once: the query of the API node and the
+        reconciliation with the database may both ask for it."""
+        if w.name in self._resuming:
+            return
+        self._resuming.add(w.name)
+        try:
+            await self._start_or_resume(w, info, patient)
+        finally:
+            self._resuming.discard(w.name)
+
+    async def _start_or_resume(
+        self, w: DeviceWorker, info: SessionInfo, patient: str | None
+    ) -> None:
+        if w.live.session_id == info.id:
+            return
         params = PipelineParams.from_json(dict(info.params))
         context = SessionContext(info, params, patient)
         path = self.settings.data_dir / files.recording_relpath(info.id)
@@ -396,7 +414,6 @@ class WorkerNode(LiveManager):
         """Takeover: replay the recording into new files, then go on from there."""
         name, sid = w.name, context.info.id
         epoch = self.held.epochs[name]
-        self._resuming.add(name)
         w.paused = True
         t0 = time.monotonic()
         try:
@@ -412,7 +429,6 @@ class WorkerNode(LiveManager):
             self._started_at[sid] = time.monotonic()
             self._store_missing_cycles(w, sid, cycles)
         finally:
-            self._resuming.discard(name)
             w.paused = False
             self.scheduler.ready(w)
         seconds = time.monotonic() - t0

@@ -164,6 +164,12 @@ class DeviceWorker:
         self.alive: Callable[[], bool] = _always
         self.fence: tuple[str, str, int] | None = None
         self.paused = False  # a takeover replays the recording first; messages wait
+        self._attachment: bytes | None = None  # "<holder>:<epoch>" on each estimate put
+
+    def set_lease(self, holder: str, epoch: int, alive: Callable[[], bool]) -> None:
+        self.alive = alive
+        self.fence = (self.name, holder, epoch)
+        self._attachment = f"{holder}:{epoch}".encode()
 
     # ------------------------------------------------------------------ producer side
 
@@ -266,7 +272,10 @@ class DeviceWorker:
             block = feed.estimate_block(out.rows, display=therapist or view is not None)
             if pubs is not None:
                 try:
-                    pubs.estimate.put(feed.dumps(block.columns(len(feed.CONTRACT_FLOATS))))
+                    pubs.estimate.put(
+                        feed.dumps(block.columns(len(feed.CONTRACT_FLOATS))),
+                        attachment=self._attachment,
+                    )
                 except Exception:
                     log.warning("device %s: estimate not published", dev, exc_info=True)
             if therapist or overlay:

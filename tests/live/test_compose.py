@@ -31,7 +31,7 @@ def serve_args(command: list[str]) -> argparse.Namespace:
 
 def test_services_and_health_checks() -> None:
     services = compose()["services"]
-    assert set(services) == {"zenoh", "postgres", "rehab"}
+    assert set(services) == {"zenoh", "postgres", "rehab", "worker"}
     assert services["zenoh"]["image"].startswith("eclipse/zenoh:")
     assert services["postgres"]["image"].startswith("postgres:")
     for name, svc in services.items():
@@ -97,3 +97,27 @@ def test_the_service_is_a_client_of_the_router_and_uses_postgres() -> None:
     # the data directory is a volume
     assert str(settings.data_dir) == "/data"
     assert any(v.split(":")[1] == "/data" for v in rehab["volumes"])
+
+
+def test_workers_scale_out_on_the_same_router_database_and_volume() -> None:
+    """`docker compose up --scale worker=N`: each worker joins the rehab service's router,
+    database, key prefix and data volume (no fixed name or port: it can be replicated)."""
+    services = compose()["services"]
+    worker, rehab = services["worker"], services["rehab"]
+    assert worker["build"] == "." and "container_name" not in worker and "ports" not in worker
+    assert worker["command"][:2] == ["rehab", "worker"]
+    parser = argparse.ArgumentParser(prog="rehab")
+    cli_live.add_parser(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(worker["command"][1:])
+    env = {k: str(v) for k, v in worker["environment"].items()}
+    fields = {f"REHAB_{name.upper()}" for name in Settings.model_fields}
+    assert set(env) <= fields, set(env) - fields
+    mine = Settings(**{k[6:].lower(): v for k, v in env.items()})
+    api_env = {k: str(v) for k, v in rehab["environment"].items()}
+    api = Settings(**{k[6:].lower(): v for k, v in api_env.items()})
+    assert mine.db_url == api.db_url and mine.key_prefix == api.key_prefix
+    assert args.zenoh_connect == serve_args(rehab["command"]).zenoh_connect
+    assert str(args.data_dir) == "/data"
+    shared = {v for v in worker["volumes"]} & {v for v in rehab["volumes"]}
+    assert any(v.split(":")[1] == "/data" for v in shared)
+    assert worker["depends_on"]["rehab"] == {"condition": "service_healthy"}
