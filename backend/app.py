@@ -26,6 +26,7 @@ from backend.db.engine import Database
 from backend.db.sessions import interrupt_active_sessions
 from backend.deps import AppState
 from backend.live.gateway import make_live
+from backend.live.lease import held_devices
 from backend.live.manager import LiveManager
 from backend.routers import api_router, exports, live
 from backend.routers import viz as viz_router
@@ -51,7 +52,9 @@ async def open_storage(settings: Settings) -> AppState:
         )
         async with database.transaction() as db:
             state.first_admin = await ensure_first_admin(db, settings)
-            state.interrupted_sessions = await interrupt_active_sessions(db)
+            # sessions of devices a worker process still holds go on (backend.live.lease)
+            running = await held_devices(db)
+            state.interrupted_sessions = await interrupt_active_sessions(db, running)
             await mark_all_devices_offline(db)
     except BaseException:
         await database.dispose()

@@ -119,7 +119,14 @@ def add_parser(sub: Any) -> None:
     _common(w)
     w.add_argument("--zenoh-connect", metavar="ENDPOINT", help="the Zenoh router to join")
     w.add_argument("--max-devices", type=int, default=0, metavar="N", help="0: no limit")
-    w.set_defaults(func=cmd_worker, zenoh_listen=None)
+    w.add_argument(
+        "--router",
+        metavar="ENDPOINT",
+        dest="zenoh_listen",
+        help="be this machine's Zenoh router, listening on ENDPOINT (devices may connect "
+        "to it) and joined to --zenoh-connect's router",
+    )
+    w.set_defaults(func=cmd_worker)
 
     d = sub.add_parser(
         "demo",
@@ -175,7 +182,8 @@ def cmd_worker(args: argparse.Namespace) -> int:
         log.error("rehab worker needs --zenoh-connect (the API node's or a router's endpoint)")
         return 2
     _set_title("rehab worker")
-    asyncio.run(run_worker(settings, args.max_devices))
+    router = args.zenoh_listen is not None
+    asyncio.run(run_worker(settings, args.max_devices, router))
     return 0
 
 

@@ -21,21 +21,27 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Sequence
 from typing import Any
 
 import orjson
 import zenoh
+from sqlalchemy import select
 
 from backend.db.engine import Database
+from backend.db.models import Device, Session
+from backend.db.sessions import get_session, stop_session
 from backend.deps import LiveUnavailable, Point, SessionInfo
-from backend.live import files
+from backend.live import files, lease
 from backend.live.hub import Client
 from backend.live.manager import COMMAND_TIMEOUT_S, LiveManager
-from backend.live.node import control_key, feed_key
+from backend.live.node import control_key, feed_key, worker_key
 from backend.settings import Settings
 
 log = logging.getLogger(__name__)
+
+WORKERS_START_S = 60.0
 
 
 def _die_with_parent() -> None:  # pragma: no cover (runs in the child before exec)
@@ -104,7 +110,36 @@ class Gateway(LiveManager):
             for _ in range(self.n_workers):
                 self.children.append(self._spawn())
             self._tasks.append(asyncio.create_task(self._supervise(), name="workers"))
+            await self._wait_for_workers(loop)
             log.info("%d local workers started", self.n_workers)
+
+    async def _wait_for_workers(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Ready when the local workers are (their liveliness tokens): a device that
+        publishes once the API answers is heard."""
+        assert self.zio is not None and self.zio.session is not None
+        alive: set[str] = set()
+        ready = asyncio.Event()
+
+        def seen(holder: str, up: bool) -> None:
+            (alive.add if up else alive.discard)(holder)
+            if len(alive) >= self.n_workers:
+                ready.set()
+
+        def on_token(sample: zenoh.Sample) -> None:
+            up = sample.kind == zenoh.SampleKind.PUT
+            loop.call_soon_threadsafe(seen, str(sample.key_expr).rsplit("/", 1)[-1], up)
+
+        sub = self.zio.session.liveliness().declare_subscriber(
+            worker_key(self.prefix, "*"), on_token, history=True
+        )
+        try:
+            await asyncio.wait_for(ready.wait(), WORKERS_START_S)
+        except TimeoutError:
+            log.error(
+                "only %d of %d workers up after %.0f s", len(alive), self.n_workers, WORKERS_START_S
+            )
+        finally:
+            sub.undeclare()  # type: ignore[no-untyped-call]
 
     def _spawn(self) -> subprocess.Popen[bytes]:
         return subprocess.Popen(self._command, preexec_fn=_die_with_parent)
@@ -118,9 +153,46 @@ class Gateway(LiveManager):
                     log.error("worker %d ended (%s); starting another", child.pid, child.returncode)
                     self.children[i] = self._spawn()
 
+    async def _finish_local_sessions(self) -> None:
+        """The node stops with its workers and no other worker would take their devices:
+        their sessions end as the one-process service ends them (files complete, report
+        written, stored as interrupted). With other workers alive, they take them over."""
+        pids = {str(c.pid) for c in self.children if c.poll() is None}
+        now = time.time()
+        async with self.database.session() as db:
+            leases = await lease.table(db)
+            rows = (
+                await db.execute(
+                    select(Session.id, Device.name)
+                    .join(Device, Session.device_id == Device.id)
+                    .where(Session.status == "active")
+                )
+            ).all()
+        mine = {d for d, (h, _, x) in leases.items() if x > now and h.split("-")[-2] in pids}
+        others = any(x > now and h.split("-")[-2] not in pids for h, _, x in leases.values())
+        if others or not mine:
+            return
+        for sid, device in rows:
+            if device not in mine:
+                continue
+            try:
+                _, summary = await self._ask(device, {"op": "stop", "session_id": sid})
+            except Exception:
+                log.exception("session %s not finished cleanly", sid)
+                summary = None
+            async with self.database.transaction() as db:
+                session = await get_session(db, sid)
+                if session.status == "active":
+                    await stop_session(db, session, status="interrupted", summary=summary)
+
     async def close(self) -> None:
         for task in self._tasks:
             task.cancel()
+        if self.children:
+            try:
+                await self._finish_local_sessions()
+            except Exception:
+                log.exception("sessions of the local workers not finished")
         for child in self.children:
             with contextlib.suppress(ProcessLookupError):
                 child.send_signal(signal.SIGTERM)

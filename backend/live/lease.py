@@ -107,6 +107,12 @@ async def table(db: AsyncSession) -> dict[str, tuple[str, int, float]]:
     return {d: (h, int(e), float(x)) for d, h, e, x in rows.all()}
 
 
+async def held_devices(db: AsyncSession, now: float | None = None) -> list[str]:
+    """Devices whose lease has not expired: a worker is running them."""
+    now = time.time() if now is None else now
+    return [d for d, (_, _, x) in (await table(db)).items() if x > now]
+
+
 def rank(device: str, me: str, workers: Sequence[str]) -> int:
     """My place for ``device`` in rendezvous (highest-random-weight) hashing over the live
     workers: 0 = first choice. Every worker computes the same order."""

@@ -97,7 +97,10 @@ class LiveManager:
         s = self.settings
         if s.zenoh_listen or s.zenoh_connect:
             config = make_config(
-                listen=None if s.zenoh_connect else s.zenoh_listen,
+                # a router (a worker's, one per machine) listens and joins another router
+                listen=s.zenoh_listen
+                if self._zio_mode == "router" or not s.zenoh_connect
+                else None,
                 connect=s.zenoh_connect,
                 mode=self._zio_mode,
             )

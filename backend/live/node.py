@@ -128,8 +128,12 @@ def replay(run: LiveRun, path: Path, prefix: str) -> list[tuple[int, CycleVerdic
 
 
 class WorkerNode(LiveManager):
-    def __init__(self, settings: Settings, database: Database, max_devices: int = 0) -> None:
+    def __init__(
+        self, settings: Settings, database: Database, max_devices: int = 0, router: bool = False
+    ) -> None:
         super().__init__(settings, database)
+        if router:  # this machine's router, joined to --zenoh-connect's (router to router)
+            self._zio_mode = "router"
         self.held = lease.Held()
         self.max_devices = max_devices  # 0: no limit
         self.seen: dict[str, float] = {}  # device → monotonic time of its last sample
@@ -272,7 +276,8 @@ class WorkerNode(LiveManager):
             await asyncio.sleep(lease.RENEW_S)
             self.lag_s = max(0.0, loop.time() - t0 - lease.RENEW_S)
             try:
-                await asyncio.wait_for(self._lease_step(), lease.RENEW_S * 2)
+                # up to the self-expiry: a slow database (a loaded machine) is not yet lost
+                await asyncio.wait_for(self._lease_step(), lease.TTL_S - lease.MARGIN_S)
             except Exception as exc:  # the database is away: self-expiry will act
                 log.warning("lease renewal failed: %s", exc)
             now = time.monotonic()
@@ -520,14 +525,14 @@ class WorkerNode(LiveManager):
         raise ValueError(f"unknown command {op!r}")
 
 
-async def run_worker(settings: Settings, max_devices: int = 0) -> None:
+async def run_worker(settings: Settings, max_devices: int = 0, router: bool = False) -> None:
     """The worker's life: database (migrated by the API node, checked here), Zenoh, leases,
     until SIGTERM/SIGINT."""
     import signal
 
     database = Database(settings.db_url)
     await database.migrate()  # idempotent: a worker may start before the API node
-    node = WorkerNode(settings, database, max_devices)
+    node = WorkerNode(settings, database, max_devices, router)
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGTERM, signal.SIGINT):

@@ -109,12 +109,12 @@ def test_workers_scale_out_on_the_same_router_database_and_volume() -> None:
     parser = argparse.ArgumentParser(prog="rehab")
     cli_live.add_parser(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(worker["command"][1:])
-    env = {k: str(v) for k, v in worker["environment"].items()}
+    env: dict[str, Any] = {k: str(v) for k, v in worker["environment"].items()}
     fields = {f"REHAB_{name.upper()}" for name in Settings.model_fields}
     assert set(env) <= fields, set(env) - fields
     mine = Settings(**{k[6:].lower(): v for k, v in env.items()})
-    api_env = {k: str(v) for k, v in rehab["environment"].items()}
-    api = Settings(**{k[6:].lower(): v for k, v in api_env.items()})
+    api_env: dict[str, Any] = {k[6:].lower(): str(v) for k, v in rehab["environment"].items()}
+    api = Settings(**api_env)
     assert mine.db_url == api.db_url and mine.key_prefix == api.key_prefix
     assert args.zenoh_connect == serve_args(rehab["command"]).zenoh_connect
     assert str(args.data_dir) == "/data"

@@ -81,8 +81,8 @@ async def test_writes_of_a_stale_epoch_are_dropped(any_db_url: str) -> None:
         async def op(_: object) -> None:
             done.append("written")
 
-        writer.submit("stale", op, fence=("d3", "A", 1))  # type: ignore[arg-type]
-        writer.submit("current", op, fence=("d3", "B", 2))  # type: ignore[arg-type]
+        writer.submit("stale", op, fence=("d3", "A", 1))
+        writer.submit("current", op, fence=("d3", "B", 2))
         await writer.close()
         assert done == ["written"] and writer.fenced == 1
     finally:
