@@ -28,7 +28,10 @@ from typing import Any
 import orjson
 import zenoh
 from sqlalchemy import select
+from sqlalchemy.ext.asyncio import AsyncSession
 
+from backend.db.base import utcnow
+from backend.db.devices import mark_device_offline, touch_device
 from backend.db.engine import Database
 from backend.db.models import Device, Session
 from backend.db.sessions import get_session, stop_session
@@ -236,7 +239,18 @@ class Gateway(LiveManager):
         pass  # the workers send the statuses
 
     def _touch(self, names: Sequence[str], offline: bool = False) -> None:
-        pass  # the workers write the registry of the devices they hold
+        """Devices announced by a liveliness token are registered here (a session can
+        start on them before their data flows); their statistics are their holder's."""
+        seen = utcnow()
+        names = list(names)
+
+        async def op(db: AsyncSession) -> None:
+            for name in names:
+                await touch_device(db, name, seen_at=seen)
+                if offline:
+                    await mark_device_offline(db, name)
+
+        self.db.submit(f"registry of {len(names)} device(s)", op)
 
     def _each_second(self) -> None:
         pass

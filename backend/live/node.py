@@ -137,6 +137,7 @@ class WorkerNode(LiveManager):
         self.held = lease.Held()
         self.max_devices = max_devices  # 0: no limit
         self.seen: dict[str, float] = {}  # device → monotonic time of its last sample
+        self.announced: set[str] = set()  # devices with a liveliness token
         self._first_unheld: dict[str, float] = {}
         self.workers_alive: set[str] = set()
         self._stopped: set[int] = set()  # sessions stopped here: never resumed
@@ -253,6 +254,8 @@ class WorkerNode(LiveManager):
         return super()._device_stats(name)
 
     def _on_token(self, device: str, alive: bool) -> None:
+        # an announced device is leased before its first message (which a session records)
+        (self.announced.add if alive else self.announced.discard)(device)
         if device in self.held.epochs:
             super()._on_token(device, alive)
 
@@ -301,11 +304,13 @@ class WorkerNode(LiveManager):
             return
         now = time.monotonic()
         workers = sorted(self.workers_alive | {self.held.holder})
+        for name in self.announced - self.seen.keys():
+            self.seen[name] = now
         for name, last in list(self.seen.items()):
             if name in self.held.epochs:
                 self._first_unheld.pop(name, None)
                 continue
-            if now - last > SEEN_S:
+            if now - last > SEEN_S and name not in self.announced:
                 self.seen.pop(name, None)
                 self._first_unheld.pop(name, None)
                 continue
