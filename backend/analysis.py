@@ -13,7 +13,6 @@ import io
 import json
 import math
 import operator
-import zlib
 from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -296,9 +295,7 @@ class DeviceRun:
 
     def __post_init__(self) -> None:
         self.pipeline = Pipeline(self.params)
-        # the first batch is 512..1023 rows, by device: devices started together (a clinic
-        # powering up, a benchmark) then format at different polls, not all in one
-        self._format_at = _FORMAT_ROWS // 2 + zlib.crc32(self.device.encode()) % (_FORMAT_ROWS // 2)
+        self._format_at = _FORMAT_ROWS
 
     def reject(self, reason: str) -> None:
         self.decode_rejected[reason] = self.decode_rejected.get(reason, 0) + 1

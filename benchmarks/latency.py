@@ -242,6 +242,7 @@ def run(
     lockstep: bool = False,
     workers: int | None = None,
     worker_routers: int = 0,
+    database_url: str | None = None,
 ) -> dict[str, Any]:
     import httpx
 
@@ -274,6 +275,7 @@ def run(
             # --worker-routers: an API-only node; the workers, each its own Zenoh router
             # joined to the node's (router to router), are started below
             *(["--workers", str(0 if worker_routers else workers)] if workers is not None else []),
+            *(["--database-url", database_url] if database_url else []),
         ],
         cwd=REPO,
         stdout=subprocess.DEVNULL,
@@ -281,7 +283,7 @@ def run(
     procs: list[subprocess.Popen[str]] = []
     remote: list[subprocess.Popen[bytes]] = []
     try:
-        deadline = time.monotonic() + 60
+        deadline = time.monotonic() + 180  # the node waits for its workers; a loaded machine
         while True:
             try:
                 if httpx.get(url + "/api/health", timeout=1).status_code == 200:
@@ -305,6 +307,7 @@ def run(
                         f"tcp/127.0.0.1:{free_port()}",
                         "--data-dir",
                         str(work / "data"),
+                        *(["--database-url", database_url] if database_url else []),
                         "--log-level",
                         "warning",
                     ],
@@ -577,6 +580,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="an API-only node and N `rehab worker --router` processes, each its own Zenoh "
         "router joined to the node's (the multi-machine topology on one machine)",
     )
+    ap.add_argument("--database-url", metavar="URL", help="default: SQLite in the data dir")
     ap.add_argument("--json", metavar="FILE", help="write the results as JSON")
     # internal: the publisher and subscriber processes
     ap.add_argument("--role", choices=["publisher", "subscriber"], help=argparse.SUPPRESS)
@@ -604,6 +608,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             lockstep=args.lockstep,
             workers=args.workers if not args.worker_routers else 0,
             worker_routers=args.worker_routers,
+            database_url=args.database_url,
         )
         print(report(result))
     if args.json:

@@ -95,6 +95,7 @@ class Gateway(LiveManager):
         self.session_of: dict[str, int | None] = {}
         self._feed_sub: Any = None
         self._command: list[str] = []
+        self._starts: set[asyncio.Task[None]] = set()
 
     async def start(self, require_zenoh: bool = False) -> None:
         await super().start(require_zenoh=require_zenoh)
@@ -283,6 +284,7 @@ class Gateway(LiveManager):
         return True, answer.get("result")
 
     async def session_started(self, session: SessionInfo) -> str | None:
+        patient = await self._patient_code(session.patient_id)
         body = {
             "op": "start",
             "session": {
@@ -292,12 +294,25 @@ class Gateway(LiveManager):
                 "started_at": session.started_at.isoformat(),
                 "recording_path": session.recording_path,
             },
-            "patient": await self._patient_code(session.patient_id),
+            "patient": patient,
         }
-        answered, result = await self._ask(session.device, body)
+        # Not awaited: the request's transaction (on SQLite, the database's one write lock)
+        # stays open until the hook returns, and the workers' lease renewals wait for it.
+        # The holder starts the session on this query, or else within a second from the
+        # database (workers follow it), which the commit makes visible.
+        task = asyncio.create_task(self._start_on_holder(session, body))
+        self._starts.add(task)
+        task.add_done_callback(self._starts.discard)
+        return files.recording_relpath(session.id)
+
+    async def _start_on_holder(self, session: SessionInfo, body: dict[str, Any]) -> None:
+        try:
+            answered, _ = await self._ask(session.device, body)
+        except Exception:
+            log.exception("session %s: the holder of %s refused it", session.id, session.device)
+            return
         if not answered:
             log.info("session %s: no worker holds %s yet", session.id, session.device)
-        return str(result) if answered and result else files.recording_relpath(session.id)
 
     async def session_stopped(self, session: SessionInfo) -> dict[str, Any] | None:
         answered, result = await self._ask(session.device, {"op": "stop", "session_id": session.id})

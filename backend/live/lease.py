@@ -27,21 +27,25 @@ from __future__ import annotations
 import hashlib
 import os
 import socket
+import threading
 import time
 import uuid
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
-from sqlalchemy import select, update
+from sqlalchemy import Connection, Engine, create_engine, event, select, update
 from sqlalchemy.dialects.postgresql import insert as pg_insert
 from sqlalchemy.dialects.sqlite import insert as sqlite_insert
+from sqlalchemy.engine import make_url
 from sqlalchemy.ext.asyncio import AsyncSession
 
+from backend.db.engine import _sqlite_pragmas
 from backend.db.models import DeviceLease
 
-TTL_S = 0.8  # a dead worker's devices are free this long after its last renewal
-RENEW_S = 0.15  # renewal (and free-device) period
-MARGIN_S = 0.25  # a holder stops this long before its row can expire (skew, a late put)
+TTL_S = 1.2  # a dead worker's devices are free this long after its last renewal
+RENEW_S = 0.2  # renewal (and free-device) period
+MARGIN_S = 0.3  # a holder stops this long before its row can expire (skew, a late put)
 RANK_DELAY_S = 0.3  # the n-th choice of rendezvous hashing tries n × this late
 
 
@@ -51,33 +55,86 @@ def new_holder_id() -> str:
     return f"{host or 'worker'}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
 
 
-async def acquire(
-    db: AsyncSession, device: str, holder: str, now: float, ttl: float = TTL_S
-) -> int | None:
-    """Take ``device`` if its lease is free or expired; return the new epoch, else None."""
-    pg = db.get_bind().dialect.name == "postgresql"
+def _insert_free(pg: bool, device: str) -> Any:
     ins = (pg_insert if pg else sqlite_insert)(DeviceLease).values(
         device=device, holder="", epoch=0, expires_at=0.0
     )
-    await db.execute(ins.on_conflict_do_nothing(index_elements=["device"]))
-    epoch = await db.scalar(
+    return ins.on_conflict_do_nothing(index_elements=["device"])
+
+
+def _take(device: str, holder: str, now: float, ttl: float) -> Any:
+    return (
         update(DeviceLease)
         .where(DeviceLease.device == device, DeviceLease.expires_at <= now)
         .values(holder=holder, epoch=DeviceLease.epoch + 1, expires_at=now + ttl)
         .returning(DeviceLease.epoch)
     )
-    return None if epoch is None else int(epoch)
 
 
-async def renew(db: AsyncSession, holder: str, now: float, ttl: float = TTL_S) -> dict[str, int]:
-    """Extend every unexpired lease of ``holder``; return them (device → epoch)."""
-    rows = await db.execute(
+def _extend(holder: str, now: float, ttl: float) -> Any:
+    return (
         update(DeviceLease)
         .where(DeviceLease.holder == holder, DeviceLease.expires_at > now)
         .values(expires_at=now + ttl)
         .returning(DeviceLease.device, DeviceLease.epoch)
     )
+
+
+_ALL = select(DeviceLease.device, DeviceLease.holder, DeviceLease.epoch, DeviceLease.expires_at)
+
+
+async def acquire(
+    db: AsyncSession, device: str, holder: str, now: float, ttl: float = TTL_S
+) -> int | None:
+    """Take ``device`` if its lease is free or expired; return the new epoch, else None."""
+    await db.execute(_insert_free(db.get_bind().dialect.name == "postgresql", device))
+    epoch = await db.scalar(_take(device, holder, now, ttl))
+    return None if epoch is None else int(epoch)
+
+
+async def renew(db: AsyncSession, holder: str, now: float, ttl: float = TTL_S) -> dict[str, int]:
+    """Extend every unexpired lease of ``holder``; return them (device → epoch)."""
+    rows = await db.execute(_extend(holder, now, ttl))
     return {d: int(e) for d, e in rows.all()}
+
+
+# The same on a blocking connection: a worker keeps its leases from a thread of its own, so
+# a busy event loop (the pipelines) never delays a renewal into a false expiry.
+
+
+def acquire_sync(
+    conn: Connection, device: str, holder: str, now: float, ttl: float = TTL_S
+) -> int | None:
+    conn.execute(_insert_free(conn.dialect.name == "postgresql", device))
+    epoch = conn.scalar(_take(device, holder, now, ttl))
+    return None if epoch is None else int(epoch)
+
+
+def renew_sync(conn: Connection, holder: str, now: float, ttl: float = TTL_S) -> dict[str, int]:
+    return {d: int(e) for d, e in conn.execute(_extend(holder, now, ttl)).all()}
+
+
+def release_sync(conn: Connection, holder: str, devices: Iterable[str]) -> None:
+    conn.execute(
+        update(DeviceLease)
+        .where(DeviceLease.holder == holder, DeviceLease.device.in_(list(devices)))
+        .values(expires_at=0.0)
+    )
+
+
+def table_sync(conn: Connection) -> dict[str, tuple[str, int, float]]:
+    return {d: (h, int(e), float(x)) for d, h, e, x in conn.execute(_ALL).all()}
+
+
+def sync_engine(async_url: str) -> Engine:
+    """A blocking engine on the same database (sqlite+aiosqlite → sqlite; psycopg is both)."""
+    url = make_url(async_url)
+    if url.drivername == "sqlite+aiosqlite":
+        url = url.set(drivername="sqlite")
+    engine = create_engine(url, pool_size=1, pool_pre_ping=True)
+    if engine.dialect.name == "sqlite":
+        event.listen(engine, "connect", _sqlite_pragmas)
+    return engine
 
 
 async def release(db: AsyncSession, holder: str, devices: Iterable[str] | None = None) -> None:
@@ -101,9 +158,7 @@ async def holds(db: AsyncSession, device: str, holder: str, epoch: int) -> bool:
 
 
 async def table(db: AsyncSession) -> dict[str, tuple[str, int, float]]:
-    rows = await db.execute(
-        select(DeviceLease.device, DeviceLease.holder, DeviceLease.epoch, DeviceLease.expires_at)
-    )
+    rows = await db.execute(_ALL)
     return {d: (h, int(e), float(x)) for d, h, e, x in rows.all()}
 
 
@@ -131,6 +186,7 @@ class Held:
     holder: str = field(default_factory=new_holder_id)
     epochs: dict[str, int] = field(default_factory=dict)
     deadlines: dict[str, float] = field(default_factory=dict)  # monotonic: stop by then
+    lock: threading.Lock = field(default_factory=threading.Lock)  # the lease thread's and loop's
 
     def valid(self, device: str, now_mono: float | None = None) -> bool:
         deadline = self.deadlines.get(device)
@@ -139,9 +195,19 @@ class Held:
         return (time.monotonic() if now_mono is None else now_mono) < deadline
 
     def granted(self, device: str, epoch: int, sent_mono: float, ttl: float = TTL_S) -> None:
-        self.epochs[device] = epoch
-        self.deadlines[device] = sent_mono + ttl - MARGIN_S
+        with self.lock:
+            self.deadlines[device] = sent_mono + ttl - MARGIN_S
+            self.epochs[device] = epoch
+
+    def renewed(self, device: str, epoch: int, sent_mono: float, ttl: float = TTL_S) -> bool:
+        """Extend, unless the device was dropped (or re-taken) meanwhile."""
+        with self.lock:
+            if self.epochs.get(device) != epoch:
+                return False
+            self.deadlines[device] = sent_mono + ttl - MARGIN_S
+            return True
 
     def drop(self, device: str) -> None:
-        self.epochs.pop(device, None)
-        self.deadlines.pop(device, None)
+        with self.lock:
+            self.epochs.pop(device, None)
+            self.deadlines.pop(device, None)

@@ -8,7 +8,6 @@ sessions, so their files are complete and their report is written).
 from __future__ import annotations
 
 import asyncio
-import gc
 import logging
 import sys
 import time
@@ -50,13 +49,7 @@ log = logging.getLogger(__name__)
 
 MAX_DEVICES = 1000  # a flood of invented device names must not grow memory without bound
 SWITCH_INTERVAL_S = 0.0005
-# A full (oldest-generation) collection walks every long-lived object: 30-60 ms of a stopped
-# loop at 50 devices, every ~20 s with Python's default (10 middle-generation collections).
-# This many makes them minutes apart; the young generations, which catch nearly all cyclic
-# garbage, keep their defaults.
-FULL_GC_THRESHOLD = 200
-TICK_S = 0.05  # the ticker's period
-FLUSH_S = 0.25  # each session's files flushed to the OS this often: a kill -9 loses < 1 s
+TICK_S = 0.25  # the ticker: each session's files flushed to the OS (a kill -9 loses < 1 s)
 COMMAND_TIMEOUT_S = 30.0
 DEVICE_QUEUE_BYTES = 32 << 20
 
@@ -134,16 +127,10 @@ class LiveManager:
             self._tasks.append(
                 asyncio.create_task(self._recover(self._interrupted), name="live-recover")
             )
-        # What start-up allocated (modules, app, engine: ~200k objects) lives as long as the
-        # service: frozen, it is out of the collector's full passes, each of which stopped
-        # the live loop for 50-130 ms.
-        gc.collect()
-        gc.freeze()
-        g0, g1, _ = gc.get_threshold()
-        gc.set_threshold(g0, g1, FULL_GC_THRESHOLD)
-        # The Zenoh receive thread and the loop share the GIL; a thread that wants it back
-        # (the loop after a Zenoh put, the receiver on a sample) waits up to the switch
-        # interval. Python's 5 ms default put tens of milliseconds on p99 at 50 devices.
+
+        # The loop shares the GIL with Zenoh's receive thread and a worker's lease thread;
+        # a thread that wants it back waits up to the switch interval (Python's 5 ms put
+        # tens of milliseconds on p99, and stretched a worker's renewals into expiries).
         sys.setswitchinterval(SWITCH_INTERVAL_S)
 
     async def close(self) -> None:
@@ -322,14 +309,11 @@ class LiveManager:
 
     async def _ticker(self) -> None:
         n = 0
-        every = round(FLUSH_S / TICK_S)
         while True:
             await asyncio.sleep(TICK_S)
             n += 1
-            # each session's files every FLUSH_S, a share of the sessions per tick: all of
-            # them at once held the loop for tens of milliseconds at 50 devices
-            for i, w in enumerate(self.workers.values()):
-                if w.live.files is not None and i % every == n % every and w.alive():
+            for w in list(self.workers.values()):
+                if w.live.files is not None and w.alive():
                     try:
                         w.live.files.flush()
                     except OSError:

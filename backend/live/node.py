@@ -20,6 +20,7 @@ A :class:`WorkerNode` is the live manager restricted to its leased devices:
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import threading
 import time
@@ -30,7 +31,7 @@ from typing import Any
 
 import orjson
 import zenoh
-from sqlalchemy import func, select
+from sqlalchemy import Engine, func, select
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from backend import keys, recording
@@ -149,7 +150,8 @@ class WorkerNode(LiveManager):
         self._token: Any = None
         self._extra: list[Any] = []
         self._feed_pub: zenoh.Publisher | None = None
-        self._lock = threading.Lock()
+        self._stop_leases = threading.Event()
+        self._lease_thread: threading.Thread | None = None
 
     # ------------------------------------------------------------------ Zenoh
 
@@ -196,7 +198,11 @@ class WorkerNode(LiveManager):
             congestion_control=zenoh.CongestionControl.DROP,
         )
         self.hub.clients.add(FeedForwarder(self._feed_pub))  # type: ignore[arg-type]
-        self._tasks.append(asyncio.create_task(self._lease_loop(), name="worker-leases"))
+        self._tasks.append(asyncio.create_task(self._measure_lag(), name="worker-lag"))
+        self._lease_thread = threading.Thread(
+            target=self._keep_leases, args=(loop,), name="leases", daemon=True
+        )
+        self._lease_thread.start()
         self._tasks.append(asyncio.create_task(self._reconcile_loop(), name="worker-sessions"))
         log.info("worker %s started", self.held.holder)
 
@@ -209,6 +215,9 @@ class WorkerNode(LiveManager):
     async def close(self) -> None:
         """A clean stop: files flushed (sessions stay active), leases released at once, so
         another worker takes the devices over and continues their sessions."""
+        self._stop_leases.set()
+        if self._lease_thread is not None:
+            await asyncio.to_thread(self._lease_thread.join, 10)
         for task in self._tasks:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
@@ -270,41 +279,67 @@ class WorkerNode(LiveManager):
         if self.lag_s > LAG_LIMIT_S:
             return True
         limit = self.settings.ingest_queue_size * QUEUE_LIMIT
-        return any(w.queued > limit for w in self.workers.values())
+        try:
+            return any(w.queued > limit for w in list(self.workers.values()))
+        except RuntimeError:  # the loop changed the dict meanwhile: ask again next step
+            return True
 
-    async def _lease_loop(self) -> None:
+    async def _measure_lag(self) -> None:
         loop = asyncio.get_running_loop()
         while True:
             t0 = loop.time()
             await asyncio.sleep(lease.RENEW_S)
             self.lag_s = max(0.0, loop.time() - t0 - lease.RENEW_S)
-            try:
-                # up to the self-expiry: a slow database (a loaded machine) is not yet lost
-                await asyncio.wait_for(self._lease_step(), lease.TTL_S - lease.MARGIN_S)
-            except Exception as exc:  # the database is away: self-expiry will act
-                log.warning("lease renewal failed: %s", exc)
-            now = time.monotonic()
-            for name in list(self.held.epochs):
-                if not self.held.valid(name, now):
-                    self._lose(name, "lease expired locally")
 
-    async def _lease_step(self) -> None:
+    # ------------------------------------------------------------------ the lease thread
+
+    def _keep_leases(self, loop: asyncio.AbstractEventLoop) -> None:
+        """A thread of its own with a blocking connection: the pipelines keeping the event
+        loop busy never delay a renewal (they did, into false expiries, under load)."""
+        engine = lease.sync_engine(self.settings.db_url)
+        try:
+            while not self._stop_leases.wait(lease.RENEW_S):
+                try:
+                    self._lease_step(engine, loop)
+                except Exception as exc:  # the database is away: self-expiry will act
+                    log.warning("lease renewal failed: %s", exc)
+                now = time.monotonic()
+                for name in list(self.held.epochs):
+                    if not self.held.valid(name, now):
+                        self._to_loop(loop, self._lose, name, "lease expired locally")
+        finally:
+            engine.dispose()
+
+    def _to_loop(self, loop: asyncio.AbstractEventLoop, fn: Any, *args: Any) -> None:
+        with contextlib.suppress(RuntimeError):  # the loop closed: the worker is stopping
+            loop.call_soon_threadsafe(fn, *args)
+
+    def _lease_step(self, engine: Engine, loop: asyncio.AbstractEventLoop) -> None:
+        holder = self.held.holder
+        mine = list(self.held.epochs)
         sent_mono, sent_wall = time.monotonic(), time.time()
-        async with self.database.transaction() as db:
-            kept = await lease.renew(db, self.held.holder, sent_wall)
-            rows = await lease.table(db)  # to try only the free ones: one read, not a write each
-        for name in list(self.held.epochs):
-            if kept.get(name) != self.held.epochs[name]:
-                self._lose(name, "lease not renewed")
-        for name, epoch in kept.items():
-            if name in self.held.epochs:
-                self.held.granted(name, epoch, sent_mono)
+        with engine.begin() as conn:
+            kept = lease.renew_sync(conn, holder, sent_wall) if mine else {}
+            rows = lease.table_sync(conn)  # to try only the free ones: a read, not a write each
+        for name in mine:
+            epoch = self.held.epochs.get(name)
+            if epoch is None:
+                continue
+            if kept.get(name) != epoch:
+                self._to_loop(loop, self._lose, name, "lease not renewed")
+            else:
+                self.held.renewed(name, epoch, sent_mono)
+        # rows of ours no longer held here (dropped by the loop): let them go now
+        stray = [d for d in kept if d not in self.held.epochs]
+        if stray:
+            with engine.begin() as conn:
+                lease.release_sync(conn, holder, stray)
         self.behind = self._falling_behind()
         if self.behind:
             return
         now = time.monotonic()
-        workers = sorted(self.workers_alive | {self.held.holder})
-        for name in self.announced - self.seen.keys():
+        workers = sorted(self.workers_alive | {holder})
+        for name in list(self.announced - self.seen.keys()):
             self.seen[name] = now
         for name, last in list(self.seen.items()):
             if name in self.held.epochs:
@@ -318,24 +353,28 @@ class WorkerNode(LiveManager):
             row = rows.get(name)
             if row is not None and row[2] > sent_wall:
                 continue  # held by another
-            if now - first < lease.rank(name, self.held.holder, workers) * lease.RANK_DELAY_S:
+            if now - first < lease.rank(name, holder, workers) * lease.RANK_DELAY_S:
                 continue
             sent_mono, sent_wall = time.monotonic(), time.time()
-            async with self.database.transaction() as db:
-                taken = await lease.acquire(db, name, self.held.holder, sent_wall)
+            with engine.begin() as conn:
+                taken = lease.acquire_sync(conn, name, holder, sent_wall)
             if taken is not None:
                 self.held.granted(name, taken, sent_mono)
-                self._gain(name)
+                self._to_loop(loop, self._gain, name)
                 if self._falling_behind():
                     return
 
     def _gain(self, name: str) -> None:
+        if name not in self.held.epochs:
+            return  # lost again meanwhile
         log.info("device %s: lease taken (epoch %d)", name, self.held.epochs[name])
         self._first_unheld.pop(name, None)
         self._worker_for(name)
         asyncio.get_running_loop().create_task(self._reconcile([name]))
 
     def _lose(self, name: str, why: str) -> None:
+        if name not in self.held.epochs and name not in self.workers:
+            return  # already done
         log.warning("device %s: %s; stopped here", name, why)
         self.held.drop(name)
         self.stats.pop(name, None)

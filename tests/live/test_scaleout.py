@@ -307,6 +307,11 @@ class Attributed:
         holder, _, epoch = att.rpartition(":")
         self.seen.append((str(sample.key_expr).split("/")[1], time.time(), holder, int(epoch)))
 
+    def workers(self) -> int:
+        """Workers alive (their liveliness tokens)."""
+        replies = self._session.liveliness().get("rehab/@worker/*", timeout=2.0)
+        return sum(1 for r in replies if r.ok is not None)
+
     def close(self) -> None:
         self._sub.undeclare()  # type: ignore[no-untyped-call]
         self._session.close()  # type: ignore[no-untyped-call]
@@ -354,6 +359,7 @@ def test_worker_cut_off_from_the_database_stops_before_takeover(
         )
         procs += [cut_off, worker_proc(endpoint, pg_url, data_dir)]
         est = Attributed(endpoint)
+        wait_for(lambda: est is not None and est.workers() == 2, timeout=60, what="workers up")
         api, _ = login(base, Settings(data_dir=data_dir, database_url=pg_url))
         with Publisher.connect(endpoint) as pub:
             pub.declare(outgoing)
