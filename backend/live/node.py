@@ -145,6 +145,7 @@ class WorkerNode(LiveManager):
         self._started_at: dict[int, float] = {}
         self._resuming: set[str] = set()
         self.lag_s = 0.0
+        self.paused_steps = 0  # lease steps that found devices past their local deadline
         self.behind = False
         self.takeovers: list[dict[str, Any]] = []  # (device, session, replay seconds)
         self._token: Any = None
@@ -303,10 +304,15 @@ class WorkerNode(LiveManager):
                     self._lease_step(engine, loop)
                 except Exception as exc:  # the database is away: self-expiry will act
                     log.warning("lease renewal failed: %s", exc)
+                # A lease past its local deadline is paused, not dropped: the device's
+                # turns stop (no processing, publishing or writing) until a renewal the
+                # database grants again (the row was still ours), or the database says it
+                # moved on (then it is lost). Dropping at once made every slow moment on
+                # a loaded machine a takeover, and each takeover's replay more load.
                 now = time.monotonic()
-                for name in list(self.held.epochs):
-                    if not self.held.valid(name, now):
-                        self._to_loop(loop, self._lose, name, "lease expired locally")
+                late = [n for n in list(self.held.epochs) if not self.held.valid(n, now)]
+                if late:
+                    self.paused_steps += 1
         finally:
             engine.dispose()
 
