@@ -45,6 +45,7 @@ from backend.settings import Settings
 log = logging.getLogger(__name__)
 
 WORKERS_START_S = 60.0
+START_WAIT_S = 1.0  # a session start waits this long at most for the holder
 
 
 def _die_with_parent() -> None:  # pragma: no cover (runs in the child before exec)
@@ -296,13 +297,16 @@ class Gateway(LiveManager):
             },
             "patient": patient,
         }
-        # Not awaited: the request's transaction (on SQLite, the database's one write lock)
-        # stays open until the hook returns, and the workers' lease renewals wait for it.
-        # The holder starts the session on this query, or else within a second from the
-        # database (workers follow it), which the commit makes visible.
+        # Awaited briefly only: the request's transaction (on SQLite, the database's one
+        # write lock) stays open until the hook returns, and the workers' lease renewals
+        # wait for it. Normally the holder has started the session (its first message is
+        # recorded) before the request returns; if not, it starts it on this query later,
+        # or from the database within a second (workers follow it).
         task = asyncio.create_task(self._start_on_holder(session, body))
         self._starts.add(task)
         task.add_done_callback(self._starts.discard)
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(asyncio.shield(task), START_WAIT_S)
         return files.recording_relpath(session.id)
 
     async def _start_on_holder(self, session: SessionInfo, body: dict[str, Any]) -> None:
