@@ -13,7 +13,6 @@ import io
 import json
 import math
 import operator
-import zlib
 from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -281,9 +280,7 @@ class DeviceRun:
 
     def __post_init__(self) -> None:
         self.pipeline = Pipeline(self.params)
-        # the first batch is 512..1023 rows, by device: devices started together (a clinic
-        # powering up, a benchmark) then format at different polls, not all in one
-        self._format_at = _FORMAT_ROWS // 2 + zlib.crc32(self.device.encode()) % (_FORMAT_ROWS // 2)
+        self._format_at = _FORMAT_ROWS
 
     def reject(self, reason: str) -> None:
         self.decode_rejected[reason] = self.decode_rejected.get(reason, 0) + 1
@@ -402,6 +399,9 @@ class DeviceRun:
         durations = [c["end"] - c["start"] for c in self.cycles]
         quality = p.quality.as_dict()
         quality["rejected"] = {**quality["rejected"]}
+        # by time: the pipeline notes a robot gap when polled, an IMU gap when fed, so the
+        # list's order followed the polls (a live run, a takeover's replay, an analysis)
+        quality["gaps"] = sorted(quality.get("gaps", []), key=lambda g: (g["t"], g["stream"]))
         for k, n in self.decode_rejected.items():
             quality["rejected"][k] = quality["rejected"].get(k, 0) + n
         return {

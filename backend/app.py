@@ -26,6 +26,8 @@ from backend.db.devices import mark_all_devices_offline
 from backend.db.engine import Database
 from backend.db.sessions import interrupt_active_sessions
 from backend.deps import AppState
+from backend.live.gateway import make_live
+from backend.live.lease import held_devices
 from backend.live.manager import LiveManager
 from backend.routers import api_router, exports, live
 from backend.routers import viz as viz_router
@@ -53,7 +55,9 @@ async def open_storage(settings: Settings) -> AppState:
         )
         async with database.transaction() as db:
             state.first_admin = await ensure_first_admin(db, settings)
-            state.interrupted_sessions = await interrupt_active_sessions(db)
+            # sessions of devices a worker process still holds go on (backend.live.lease)
+            running = await held_devices(db)
+            state.interrupted_sessions = await interrupt_active_sessions(db, running)
             await mark_all_devices_offline(db)
     except BaseException:
         await database.dispose()
@@ -80,7 +84,7 @@ async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         #      then runs one worker per device; it implements backend.deps.LiveHooks).
         #      `rehab serve` requires Zenoh; elsewhere (tests, tools) a busy endpoint
         #      leaves the service running without live data, with an error logged.
-        manager = LiveManager(settings, state.database, state.interrupted_sessions)
+        manager = make_live(settings, state.database, state.interrupted_sessions)
         await manager.start(require_zenoh=getattr(app.state, "live_required", False))
         state.live = manager
         # ---- [live] 3. viser server starts here.

@@ -83,6 +83,29 @@ def _common(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _security(p: argparse.ArgumentParser) -> None:
+    """Zenoh's TLS and access control, and device admission (docs/security.md)."""
+    p.add_argument(
+        "--zenoh-config",
+        type=Path,
+        metavar="FILE",
+        help="Zenoh JSON5 config: mutual TLS and access control (REHAB_ZENOH_CONFIG; "
+        "made by scripts/make-clinic-certs.py)",
+    )
+    p.add_argument(
+        "--zenoh-allow-plain",
+        action="store_true",
+        help="allow plain TCP Zenoh on a non-loopback address (REHAB_ZENOH_ALLOW_PLAIN)",
+    )
+    p.add_argument(
+        "--admit",
+        action="append",
+        metavar="GLOB",
+        help="admit devices whose name matches GLOB without approval; repeatable; "
+        "'*' admits every name (REHAB_ADMIT, a JSON list)",
+    )
+
+
 def add_parser(sub: Any) -> None:
     s = sub.add_parser(
         "serve",
@@ -102,26 +125,36 @@ def add_parser(sub: Any) -> None:
         metavar="ENDPOINT",
         help="be a client of the Zenoh router at ENDPOINT (REHAB_ZENOH_CONNECT)",
     )
+    _security(s)
     s.add_argument(
-        "--zenoh-config",
-        type=Path,
-        metavar="FILE",
-        help="Zenoh JSON5 config: mutual TLS and access control (REHAB_ZENOH_CONFIG; "
-        "made by scripts/make-clinic-certs.py)",
-    )
-    s.add_argument(
-        "--zenoh-allow-plain",
-        action="store_true",
-        help="allow plain TCP Zenoh on a non-loopback address (REHAB_ZENOH_ALLOW_PLAIN)",
-    )
-    s.add_argument(
-        "--admit",
-        action="append",
-        metavar="GLOB",
-        help="admit devices whose name matches GLOB without approval; repeatable; "
-        "'*' admits every name (REHAB_ADMIT, a JSON list)",
+        "--workers",
+        type=int,
+        metavar="N",
+        help="worker processes running the pipelines (default: the core count; 0: API only, "
+        "for workers started elsewhere with `rehab worker`; REHAB_WORKERS)",
     )
     s.set_defaults(func=cmd_serve)
+
+    w = sub.add_parser(
+        "worker",
+        help="run the pipelines of the devices this process leases (docs/scaling.md)",
+        description="A worker: takes device leases in the database, subscribes to their "
+        "data on Zenoh, records them and publishes estimates and feedback. Joins the API "
+        "node's Zenoh router (--zenoh-connect) and its database (--database-url); "
+        "recordings go to --data-dir, which every node must share.",
+    )
+    _common(w)
+    w.add_argument("--zenoh-connect", metavar="ENDPOINT", help="the Zenoh router to join")
+    _security(w)
+    w.add_argument("--max-devices", type=int, default=0, metavar="N", help="0: no limit")
+    w.add_argument(
+        "--router",
+        metavar="ENDPOINT",
+        dest="zenoh_listen",
+        help="be this machine's Zenoh router, listening on ENDPOINT (devices may connect "
+        "to it) and joined to --zenoh-connect's router",
+    )
+    w.set_defaults(func=cmd_worker)
 
     d = sub.add_parser(
         "demo",
@@ -148,6 +181,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     import uvicorn
 
     from backend.app import create_app
+    from backend.live.gateway import default_workers
 
     logging.basicConfig(level=args.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
     settings = settings_from_args(args)
@@ -164,6 +198,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
     except ZenohConfigError as exc:
         print(f"rehab serve: {exc}", file=sys.stderr)
         return 2
+    if args.workers is not None or settings.workers is None:
+        workers = default_workers() if args.workers is None else args.workers
+        settings = settings.model_copy(update={"workers": workers})
     app = create_app(settings)
     app.state.live_required = True  # a service that cannot open Zenoh must not pretend
     uvicorn.run(
@@ -177,6 +214,32 @@ def cmd_serve(args: argparse.Namespace) -> int:
         ws_max_size=settings.max_body_bytes,  # nothing we read from a client is larger
     )
     return 0
+
+
+def cmd_worker(args: argparse.Namespace) -> int:
+    from backend.live.node import run_worker
+
+    logging.basicConfig(level=args.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
+    settings = settings_from_args(args)
+    if not settings.zenoh_connect and settings.zenoh_config is None:
+        log.error(
+            "rehab worker needs --zenoh-connect (the API node's or a router's endpoint) "
+            "or a Zenoh config (REHAB_ZENOH_CONFIG) that connects"
+        )
+        return 2
+    _set_title("rehab worker")
+    router = args.zenoh_listen is not None
+    asyncio.run(run_worker(settings, args.max_devices, router))
+    return 0
+
+
+def _set_title(title: str) -> None:
+    """The process title (ps, top): its command line says ``-m backend.cli worker``."""
+    try:
+        import setproctitle
+    except ImportError:
+        return
+    setproctitle.setproctitle(title)
 
 
 # --------------------------------------------------------------------------- demo

@@ -121,6 +121,12 @@ class Settings(BaseSettings):
         "but a few per cent of the live loop's CPU at 50 devices.",
     )
     device_offline_after_s: float = Field(default=5.0, gt=0)
+    workers: int | None = Field(
+        default=None,
+        ge=0,
+        description="Worker processes the API node starts (`rehab serve --workers`; 0: API "
+        "only, remote workers); unset: one process runs everything (tests, the demo).",
+    )
 
     # Clinical records: a FHIR R4 server's base URL that receives a session's Bundle on
     # request (POST /api/sessions/{id}/fhir/send); unset = off.

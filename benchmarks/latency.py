@@ -14,6 +14,8 @@ period, 40 ms at 100 Hz × 4) and, on the WebSocket, the 30 Hz decimation.
     python benchmarks/latency.py                       # 50 devices, 120 s
     python benchmarks/latency.py --devices 20 --duration 60 --json out.json
     python benchmarks/latency.py --sweep --duration 40 # largest N with p99 ≤ 50 ms
+    python benchmarks/latency.py --workers 2           # the pipelines in 2 worker processes
+    python benchmarks/latency.py --worker-routers 2    # 2 workers, each its own Zenoh router
 """
 
 from __future__ import annotations
@@ -208,8 +210,39 @@ def stats_ms(a: np.ndarray) -> dict[str, float | None]:
     }
 
 
+def tree(pid: int) -> list[int]:
+    """A process and its descendants (the API node and its local workers)."""
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        out.append(p)
+        for task in Path(f"/proc/{p}/task").glob("*/children"):
+            try:
+                todo.extend(int(x) for x in task.read_text().split())
+            except OSError:
+                continue
+    return out
+
+
+def tree_cpu(pids: list[int]) -> dict[int, float]:
+    out = {}
+    for p in pids:
+        try:
+            out[p] = proc_sample(p)[0]
+        except OSError:
+            continue
+    return out
+
+
 def run(
-    n: int, duration: float, sessions: bool = True, verbose: bool = True, lockstep: bool = False
+    n: int,
+    duration: float,
+    sessions: bool = True,
+    verbose: bool = True,
+    lockstep: bool = False,
+    workers: int | None = None,
+    worker_routers: int = 0,
+    database_url: str | None = None,
 ) -> dict[str, Any]:
     import httpx
 
@@ -241,13 +274,18 @@ def run(
             "warning",
             "--admit",
             "*",
+            # --worker-routers: an API-only node; the workers, each its own Zenoh router
+            # joined to the node's (router to router), are started below
+            *(["--workers", str(0 if worker_routers else workers)] if workers is not None else []),
+            *(["--database-url", database_url] if database_url else []),
         ],
         cwd=REPO,
         stdout=subprocess.DEVNULL,
     )
     procs: list[subprocess.Popen[str]] = []
+    remote: list[subprocess.Popen[bytes]] = []
     try:
-        deadline = time.monotonic() + 60
+        deadline = time.monotonic() + 180  # the node waits for its workers; a loaded machine
         while True:
             try:
                 if httpx.get(url + "/api/health", timeout=1).status_code == 200:
@@ -257,6 +295,27 @@ def run(
             if time.monotonic() > deadline or service.poll() is not None:
                 raise RuntimeError("service did not start")
             time.sleep(0.2)
+        for _ in range(worker_routers):
+            remote.append(
+                subprocess.Popen(
+                    [
+                        sys.executable,
+                        "-m",
+                        "backend.cli",
+                        "worker",
+                        "--zenoh-connect",
+                        endpoint,
+                        "--router",
+                        f"tcp/127.0.0.1:{free_port()}",
+                        "--data-dir",
+                        str(work / "data"),
+                        *(["--database-url", database_url] if database_url else []),
+                        "--log-level",
+                        "warning",
+                    ],
+                    cwd=REPO,
+                )
+            )
         creds = read_admin_credentials(Settings(data_dir=work / "data"))
         assert creds is not None
         api = httpx.Client(base_url=url, timeout=60)
@@ -326,6 +385,8 @@ def run(
         time.sleep(1.0)
         cpu0, rss0 = proc_sample(service.pid)
         threads0 = thread_cpu(service.pid)
+        pids = tree(service.pid) + [p.pid for p in remote]
+        tree0 = tree_cpu(pids)
         say(f"idle service: {rss0 / 2**20:.0f} MiB; streaming {duration:.0f} s")
         t_start = time.time()
         pub.stdin.write("go\n")
@@ -340,6 +401,9 @@ def run(
         wall = time.time() - t_start
         cpu1, rss1 = proc_sample(service.pid)
         threads1 = thread_cpu(service.pid)
+        tree1 = tree_cpu(pids)
+        by_proc = {p: tree1[p] - tree0.get(p, 0.0) for p in tree1 if p in tree0}
+        worker_cpu = sum(c for p, c in by_proc.items() if p != service.pid)
         # the event loop's thread (the pipelines, ingest, outputs): the one that saturates
         used = {
             tid: (name, cpu - threads0.get(tid, (name, 0.0))[1])
@@ -399,6 +463,16 @@ def run(
             "service_rss_peak_mib": round(peak / 2**20, 1),
             "memory_per_device_mib": round((rss1 - rss0) / n / 2**20, 2),
             "cpu_per_device_percent": round(100 * (cpu1 - cpu0) / wall / n, 2),
+            "workers": len(pids) - 1,
+            "cpu_percent_by_process": {
+                ("api" if p == service.pid else f"worker {p}"): round(100 * c / wall, 1)
+                for p, c in by_proc.items()
+            },
+            "total_cpu_percent": round(100 * sum(by_proc.values()) / wall, 1),
+            # the pipelines' cost: worker CPU seconds per device-second of real-time data
+            "worker_cpu_ms_per_device_s": round(1000 * worker_cpu / wall / n, 2)
+            if len(pids) > 1
+            else None,
         }
         result["meets_target"] = bool(
             result["messages_lost"] == 0
@@ -413,6 +487,13 @@ def run(
         for p in procs:
             if p.poll() is None:
                 p.kill()
+        for rw in remote:
+            rw.send_signal(signal.SIGTERM)
+        for rw in remote:
+            try:
+                rw.wait(30)
+            except subprocess.TimeoutExpired:
+                rw.kill()
         service.send_signal(signal.SIGTERM)
         try:
             service.wait(60)
@@ -460,6 +541,12 @@ def report(r: dict[str, Any]) -> str:
         f"({r['cpu_per_device_percent']} %/device), RSS {r['service_rss_idle_mib']} → "
         f"{r['service_rss_end_mib']} MiB ({r['memory_per_device_mib']} MiB/device)"
         f" {'OK' if r['meets_target'] else 'FAILS p99 <= 50 ms'}"
+        + (
+            f"; {r['workers']} workers, CPU by process {r['cpu_percent_by_process']}, "
+            f"{r['worker_cpu_ms_per_device_s']} ms of worker CPU per device-second"
+            if r.get("workers")
+            else ""
+        )
     )
 
 
@@ -481,6 +568,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         action="store_true",
         help="devices stream without a session (no recording, no cycle storage)",
     )
+    ap.add_argument(
+        "--workers",
+        type=int,
+        metavar="N",
+        help="rehab serve --workers N (default: the service's default, the core count)",
+    )
+    ap.add_argument(
+        "--worker-routers",
+        type=int,
+        default=0,
+        metavar="N",
+        help="an API-only node and N `rehab worker --router` processes, each its own Zenoh "
+        "router joined to the node's (the multi-machine topology on one machine)",
+    )
+    ap.add_argument("--database-url", metavar="URL", help="default: SQLite in the data dir")
     ap.add_argument("--json", metavar="FILE", help="write the results as JSON")
     # internal: the publisher and subscriber processes
     ap.add_argument("--role", choices=["publisher", "subscriber"], help=argparse.SUPPRESS)
@@ -501,7 +603,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(report(r))
         print(f"capacity: {result['capacity_devices']} devices at p99 ≤ {TARGET_P99_MS:.0f} ms")
     else:
-        result = run(args.devices, args.duration, not args.no_sessions, lockstep=args.lockstep)
+        result = run(
+            args.devices,
+            args.duration,
+            not args.no_sessions,
+            lockstep=args.lockstep,
+            workers=args.workers if not args.worker_routers else 0,
+            worker_routers=args.worker_routers,
+            database_url=args.database_url,
+        )
         print(report(result))
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=1))

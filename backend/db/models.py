@@ -199,3 +199,19 @@ class Login(Base):
     expires_at: Mapped[datetime]
     revoked_at: Mapped[datetime | None]
     ip: Mapped[str | None] = mapped_column(String(64))
+
+
+class DeviceLease(Base):
+    """Which worker runs a device's pipeline (see :mod:`backend.live.lease`).
+
+    ``epoch`` grows by one at every change of holder: the fencing token a holder's writes
+    are conditioned on. ``expires_at`` is the holder's wall clock (Unix seconds) plus the
+    lease's time to live.
+    """
+
+    __tablename__ = "device_leases"
+
+    device: Mapped[str] = mapped_column(String(64), primary_key=True)
+    holder: Mapped[str] = mapped_column(String(64), default="")
+    epoch: Mapped[int] = mapped_column(Integer, default=0)
+    expires_at: Mapped[float] = mapped_column(Float, default=0.0)

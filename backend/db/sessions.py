@@ -110,16 +110,19 @@ async def stop_session(
     await db.flush()
 
 
-async def interrupt_active_sessions(db: AsyncSession) -> list[int]:
+async def interrupt_active_sessions(db: AsyncSession, running: Sequence[str] = ()) -> list[int]:
     """At start: sessions a previous run left active were cut off (crash, kill -9).
 
     They end when their device was last seen, the best record of when data stopped.
+    ``running``: devices a live worker holds (its sessions go on).
     """
     sessions = await db.scalars(
         select(Session).where(Session.status == "active").options(selectinload(Session.device))
     )
     ids = []
     for session in sessions:
+        if session.device.name in running:
+            continue
         session.status = "interrupted"
         session.stopped_at = max(session.started_at, session.device.last_seen)
         ids.append(session.id)

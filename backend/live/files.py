@@ -14,6 +14,8 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import os
+import shutil
 from collections.abc import Iterable
 from datetime import UTC, datetime
 from pathlib import Path
@@ -91,24 +93,56 @@ class LineSink(list[str]):
 class SessionFiles:
     """The files of one running session (opened at start, closed at stop)."""
 
-    def __init__(self, data_dir: Path, session_id: int) -> None:
+    def __init__(self, data_dir: Path, session_id: int, staging: str | None = None) -> None:
+        """``staging``: a takeover's files, written beside the session's under this suffix
+        and put in their place by :meth:`promote` once the recording is replayed."""
         self.relpath = recording_relpath(session_id)
         self.recording_path = data_dir / self.relpath
         self.out = outputs_dir(self.recording_path)
         self.recording_path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
-        _set_aside(self.recording_path)
-        _set_aside(self.out)
-        self.out.mkdir(mode=0o700)
+        self._staging = staging
+        rec, out = self.recording_path, self.out
+        if staging is None:
+            _set_aside(rec)
+            _set_aside(out)
+        else:
+            rec = rec.with_name(f"{session_id}.{staging}{SUFFIX}")  # still .gz
+            out = out.with_name(f"{out.name}.{staging}")
+        out.mkdir(mode=0o700)
         # level 1: a third of level 6's CPU for ~20 % more bytes (the live loop is the
         # scarce resource; a recording can be recompressed offline)
-        self.recorder = recording.Writer(self.recording_path, "x", compresslevel=1)
-        self._est = open(self.out / "estimates.csv", "x", encoding="utf-8")  # noqa: SIM115
-        self._det = open(self.out / "details.csv", "x", encoding="utf-8")  # noqa: SIM115
+        self.recorder = recording.Writer(rec, "x", compresslevel=1)
+        self._est = open(out / "estimates.csv", "x", encoding="utf-8")  # noqa: SIM115
+        self._det = open(out / "details.csv", "x", encoding="utf-8")  # noqa: SIM115
         self._est.write(CSV_HEADER + "\n")
         self._det.write(DETAILS_HEADER + "\n")
         self.estimates = LineSink(self._est)
         self.details = LineSink(self._det)
         self.closed = False
+
+    def promote(self) -> None:
+        """A takeover's replayed files in place of the previous holder's (one rename each:
+        a stale holder still writing would write into the files set aside, never into
+        these)."""
+        if self._staging is None:
+            return
+        self.flush()
+        suffix, self._staging = self._staging, None
+        rec_tmp = self.recording_path.with_name(
+            f"{outputs_dir(self.recording_path).name}.{suffix}{SUFFIX}"
+        )
+        out_tmp = self.out.with_name(f"{self.out.name}.{suffix}")
+        os.replace(rec_tmp, self.recording_path)
+        old = self.out.with_name(f"{self.out.name}.{suffix}.old")
+        if self.out.exists():
+            self.out.rename(old)
+        out_tmp.rename(self.out)
+        shutil.rmtree(old, ignore_errors=True)
+        self.recorder.path = self.recording_path
+
+    def abandon(self) -> None:
+        """The lease is lost: never write again (the new holder rebuilds the files)."""
+        self.closed = True
 
     def flush(self) -> None:
         """Everything so far to the OS (the service does it every 0.25 s)."""

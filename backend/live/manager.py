@@ -8,11 +8,10 @@ sessions, so their files are complete and their report is written).
 from __future__ import annotations
 
 import asyncio
-import gc
 import logging
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -60,13 +59,7 @@ log = logging.getLogger(__name__)
 
 MAX_DEVICES = 1000  # a flood of invented device names must not grow memory without bound
 SWITCH_INTERVAL_S = 0.0005
-# A full (oldest-generation) collection walks every long-lived object: 30-60 ms of a stopped
-# loop at 50 devices, every ~20 s with Python's default (10 middle-generation collections).
-# This many makes them minutes apart; the young generations, which catch nearly all cyclic
-# garbage, keep their defaults.
-FULL_GC_THRESHOLD = 200
-TICK_S = 0.05  # the ticker's period
-FLUSH_S = 0.25  # each session's files flushed to the OS this often: a kill -9 loses < 1 s
+TICK_S = 0.25  # the ticker: each session's files flushed to the OS (a kill -9 loses < 1 s)
 COMMAND_TIMEOUT_S = 30.0
 DEVICE_QUEUE_BYTES = 32 << 20
 
@@ -95,6 +88,10 @@ class LiveManager:
         self._idle_params = PipelineParams()
         self._idle_status = Pipeline(self._idle_params).status()
         self.viz: Any = None  # the 3D view (backend.viz.Viz), set by the app once created
+        # how the Zenoh session is opened (a worker filters keys, an API node takes no data)
+        self._zio_accept: Callable[[str], bool] | None = None
+        self._zio_subscribe = True
+        self._zio_mode: str | None = None
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -107,8 +104,12 @@ class LiveManager:
         s = self.settings
         if s.zenoh_listen or s.zenoh_connect or s.zenoh_config:
             config = make_config(  # a refused set-up raises: the service must not start
-                listen=None if s.zenoh_connect else s.zenoh_listen,
+                # a router (a worker's, one per machine) listens and joins another router
+                listen=s.zenoh_listen
+                if self._zio_mode == "router" or not s.zenoh_connect
+                else None,
                 connect=s.zenoh_connect,
+                mode=self._zio_mode,
                 file=s.zenoh_config,
                 allow_plain=s.zenoh_allow_plain,
             )
@@ -119,6 +120,8 @@ class LiveManager:
                 self._on_batch,
                 self._on_token,
                 MAX_PAYLOAD_BYTES,
+                accept=self._zio_accept,
+                subscribe=self._zio_subscribe,
             )
             try:
                 zio.open()
@@ -140,16 +143,10 @@ class LiveManager:
             self._tasks.append(
                 asyncio.create_task(self._recover(self._interrupted), name="live-recover")
             )
-        # What start-up allocated (modules, app, engine: ~200k objects) lives as long as the
-        # service: frozen, it is out of the collector's full passes, each of which stopped
-        # the live loop for 50-130 ms.
-        gc.collect()
-        gc.freeze()
-        g0, g1, _ = gc.get_threshold()
-        gc.set_threshold(g0, g1, FULL_GC_THRESHOLD)
-        # The Zenoh receive thread and the loop share the GIL; a thread that wants it back
-        # (the loop after a Zenoh put, the receiver on a sample) waits up to the switch
-        # interval. Python's 5 ms default put tens of milliseconds on p99 at 50 devices.
+
+        # The loop shares the GIL with Zenoh's receive thread and a worker's lease thread;
+        # a thread that wants it back waits up to the switch interval (Python's 5 ms put
+        # tens of milliseconds on p99, and stretched a worker's renewals into expiries).
         sys.setswitchinterval(SWITCH_INTERVAL_S)
 
     async def close(self) -> None:
@@ -362,14 +359,11 @@ class LiveManager:
 
     async def _ticker(self) -> None:
         n = 0
-        every = round(FLUSH_S / TICK_S)
         while True:
             await asyncio.sleep(TICK_S)
             n += 1
-            # each session's files every FLUSH_S, a share of the sessions per tick: all of
-            # them at once held the loop for tens of milliseconds at 50 devices
-            for i, w in enumerate(self.workers.values()):
-                if w.live.files is not None and i % every == n % every:
+            for w in list(self.workers.values()):
+                if w.live.files is not None and w.alive():
                     try:
                         w.live.files.flush()
                     except OSError:

@@ -19,23 +19,27 @@ from backend.db.engine import Database
 log = logging.getLogger(__name__)
 
 Op = Callable[[AsyncSession], Awaitable[Any]]
+Fence = tuple[str, str, int]  # (device, lease holder, epoch): see backend.live.lease
 MAX_BATCH = 500
 
 
 class DbWriter:
     def __init__(self, database: Database, maxsize: int = 10_000) -> None:
         self.database = database
-        self._queue: asyncio.Queue[tuple[str, Op] | None] = asyncio.Queue(maxsize)
+        self._queue: asyncio.Queue[tuple[str, Op, Fence | None] | None] = asyncio.Queue(maxsize)
         self._task: asyncio.Task[None] | None = None
         self.dropped = 0
         self.failed = 0
+        self.fenced = 0  # writes refused: the device's lease had moved on
 
     def start(self) -> None:
         self._task = asyncio.create_task(self._run(), name="live-db-writer")
 
-    def submit(self, what: str, op: Op) -> None:
+    def submit(self, what: str, op: Op, fence: Fence | None = None) -> None:
+        """``fence``: written only while that lease holder still holds the device at that
+        epoch (checked in the write's own transaction)."""
         try:
-            self._queue.put_nowait((what, op))
+            self._queue.put_nowait((what, op, fence))
         except asyncio.QueueFull:
             self.dropped += 1
             log.error("database writes are backed up; dropped %s", what)
@@ -57,10 +61,20 @@ class DbWriter:
             if last:
                 return
 
-    async def _write(self, batch: list[tuple[str, Op]]) -> None:
+    async def _write(self, batch: list[tuple[str, Op, Fence | None]]) -> None:
+        from backend.live.lease import holds
+
         try:
             async with self.database.transaction() as db:
-                for _, op in batch:
+                ok: dict[Fence, bool] = {}
+                for what, op, fence in batch:
+                    if fence is not None:
+                        if fence not in ok:
+                            ok[fence] = await holds(db, *fence)
+                        if not ok[fence]:
+                            self.fenced += 1
+                            log.warning("not written, lease lost: %s", what)
+                            continue
                     await op(db)
             return
         except Exception:

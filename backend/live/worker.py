@@ -91,6 +91,10 @@ def session_summary(report: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def _always() -> bool:
+    return True
+
+
 def _finite(x: float) -> float | None:
     return x if math.isfinite(x) else None
 
@@ -180,6 +184,17 @@ class DeviceWorker:
         self.poll_due = False
         self.internal_errors = 0
         self.closed = False
+        # a worker process's lease (backend.live.lease): nothing is processed, published or
+        # written once ``alive()`` is false; database writes carry (device, holder, epoch)
+        self.alive: Callable[[], bool] = _always
+        self.fence: tuple[str, str, int] | None = None
+        self.paused = False  # a takeover replays the recording first; messages wait
+        self._attachment: bytes | None = None  # "<holder>:<epoch>" on each estimate put
+
+    def set_lease(self, holder: str, epoch: int, alive: Callable[[], bool]) -> None:
+        self.alive = alive
+        self.fence = (self.name, holder, epoch)
+        self._attachment = f"{holder}:{epoch}".encode()
 
     # ------------------------------------------------------------------ producer side
 
@@ -225,7 +240,11 @@ class DeviceWorker:
     # ------------------------------------------------------------------ a turn
 
     def turn(self) -> None:
-        if self.closed:
+        if self.closed or self.paused:
+            return
+        if not self.alive():  # the lease is no longer surely ours: drop, never process
+            self._queue = deque(c for c in self._queue if isinstance(c, Command))
+            self._bytes = 0
             return
         try:
             self._step()
@@ -289,7 +308,10 @@ class DeviceWorker:
             block = feed.estimate_block(out.rows, display=therapist or view is not None)
             if pubs is not None:
                 try:
-                    pubs.estimate.put(feed.dumps(block.columns(len(feed.CONTRACT_FLOATS))))
+                    pubs.estimate.put(
+                        feed.dumps(block.columns(len(feed.CONTRACT_FLOATS))),
+                        attachment=self._attachment,
+                    )
                 except Exception:
                     log.warning("device %s: estimate not published", dev, exc_info=True)
             if therapist or overlay:
@@ -349,13 +371,13 @@ class DeviceWorker:
                 index=index,
             )
 
-        self._db.submit(f"cycle {index} of session {sid}", op)
+        self._db.submit(f"cycle {index} of session {sid}", op, fence=self.fence)
 
     def _store_nominal(self, sid: int, point: list[float], source: str) -> None:
         async def op(db: AsyncSession) -> None:
             await store_nominal_shoulder(db, sid, point, source)  # type: ignore[arg-type]
 
-        self._db.submit(f"nominal shoulder of session {sid}", op)
+        self._db.submit(f"nominal shoulder of session {sid}", op, fence=self.fence)
 
     # ------------------------------------------------------------------ commands
 

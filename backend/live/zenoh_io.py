@@ -99,6 +99,8 @@ class ZenohIO:
         on_batch: Callable[[list[RawSample]], None],
         on_token: Callable[[str, bool], None],
         max_payload: int,
+        accept: Callable[[str], bool] | None = None,
+        subscribe: bool = True,
     ) -> None:
         self._config = config
         self.prefix = prefix
@@ -106,6 +108,9 @@ class ZenohIO:
         self._on_batch = on_batch
         self._on_token = on_token
         self._max_payload = max_payload
+        # a worker's filter on the key (the devices it holds), before any copy of the payload
+        self._accept = accept
+        self._subscribe = subscribe  # an API-only node takes no device data
         self._buf: deque[RawSample] = deque()
         self._buf_bytes = 0
         self._bytes_lock = threading.Lock()  # held for an addition only
@@ -120,6 +125,20 @@ class ZenohIO:
 
     def open(self) -> None:
         self._session = zenoh.open(self._config)
+        if self._subscribe:
+            self._open_data()
+        self._subs.append(
+            self._session.liveliness().declare_subscriber(
+                f"{self.prefix}/*/**", self._on_liveliness, history=True
+            )
+        )
+
+    @property
+    def session(self) -> zenoh.Session | None:
+        return self._session
+
+    def _open_data(self) -> None:
+        assert self._session is not None
         data = self._session.declare_subscriber(
             keys.subscription(self.prefix),
             zenoh.handlers.FifoChannel(RX_CHANNEL),
@@ -130,11 +149,6 @@ class ZenohIO:
             target=self._receive, args=(data.handler,), name="zenoh-rx", daemon=True
         )
         self._rx.start()
-        self._subs.append(
-            self._session.liveliness().declare_subscriber(
-                f"{self.prefix}/*/**", self._on_liveliness, history=True
-            )
-        )
 
     def close(self) -> None:
         session, self._session = self._session, None
@@ -170,6 +184,8 @@ class ZenohIO:
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         if sample.kind != zenoh.SampleKind.PUT:
+            return
+        if self._accept is not None and not self._accept(str(sample.key_expr)):
             return
         size = len(sample.payload)
         keep = size <= self._max_payload  # too large: keep only the fact, not the bytes

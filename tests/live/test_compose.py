@@ -31,7 +31,7 @@ def serve_args(command: list[str]) -> argparse.Namespace:
 
 def test_services_and_health_checks() -> None:
     services = compose()["services"]
-    assert {"zenoh", "postgres", "rehab", "proxy"} <= set(services)
+    assert set(services) == {"zenoh", "postgres", "rehab", "proxy", "worker"}
     assert services["zenoh"]["image"].startswith("eclipse/zenoh:")
     assert services["postgres"]["image"].startswith("postgres:")
     for name, svc in services.items():
@@ -160,3 +160,32 @@ def test_tls_proxy_in_front() -> None:
         for mapping in svc.get("ports", []):
             if name not in ("proxy", "zenoh"):
                 assert mapping.startswith("127.0.0.1:"), (name, mapping)
+
+
+def test_workers_scale_out_on_the_same_router_database_and_volume() -> None:
+    """`docker compose up --scale worker=N`: each worker joins the rehab service's router,
+    database, key prefix and data volume (no fixed name or port: it can be replicated)."""
+    services = compose()["services"]
+    worker, rehab = services["worker"], services["rehab"]
+    assert worker["build"] == "." and "container_name" not in worker and "ports" not in worker
+    assert worker["command"][:2] == ["rehab", "worker"]
+    parser = argparse.ArgumentParser(prog="rehab")
+    cli_live.add_parser(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(worker["command"][1:])
+    env: dict[str, Any] = {k: str(v) for k, v in worker["environment"].items()}
+    fields = {f"REHAB_{name.upper()}" for name in Settings.model_fields}
+    assert set(env) <= fields, set(env) - fields
+    mine = Settings(**{k[6:].lower(): v for k, v in env.items()})
+    api_env: dict[str, Any] = {k[6:].lower(): str(v) for k, v in rehab["environment"].items()}
+    api = Settings(**api_env)
+    assert mine.database_url == api.database_url and mine.key_prefix == api.key_prefix
+    assert mine.database_password_file == api.database_password_file
+    assert set(worker["secrets"]) <= set(rehab["secrets"])
+    # the same Zenoh identity (the service's certificate) and router as the API node
+    assert args.zenoh_config == serve_args(rehab["command"]).zenoh_config
+    zenoh_mounts = {v for v in rehab["volumes"] if "/run/zenoh/" in v}
+    assert zenoh_mounts <= set(worker["volumes"])
+    assert str(args.data_dir) == "/data"
+    shared = {v for v in worker["volumes"]} & {v for v in rehab["volumes"]}
+    assert any(v.split(":")[1] == "/data" for v in shared)
+    assert worker["depends_on"]["rehab"] == {"condition": "service_healthy"}

@@ -1,0 +1,366 @@
+"""The API node of a scaled-out service (``rehab serve --workers N``).
+
+It keeps REST, the WebSockets and the device registry (the ``devices`` table the workers
+write), and runs no pipeline: devices' data goes to the workers through its Zenoh router.
+
+- Sessions: the REST layer still calls :class:`backend.deps.LiveHooks`; here each call is a
+  Zenoh query on ``<prefix>/@ctl/<device>``, answered by the one worker holding the device.
+  Without a holder (no data yet), a start still succeeds: the session is in the database and
+  the worker that takes the device runs it (workers follow the database every second).
+- WebSockets: fed with the dashboard messages the workers publish on ``<prefix>/@feed/*``,
+  like any other Zenoh subscriber.
+- Local workers: ``N`` child processes (``rehab worker``), killed with the node.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import orjson
+import zenoh
+from sqlalchemy import select
+from sqlalchemy.ext.asyncio import AsyncSession
+
+from backend.db.base import utcnow
+from backend.db.devices import mark_device_offline, touch_device
+from backend.db.engine import Database
+from backend.db.models import Device, Session
+from backend.db.sessions import get_session, stop_session
+from backend.deps import LiveUnavailable, Point, SessionInfo
+from backend.live import files, lease
+from backend.live.hub import Client
+from backend.live.manager import COMMAND_TIMEOUT_S, LiveManager
+from backend.live.node import control_key, feed_key, worker_key
+from backend.settings import Settings
+
+log = logging.getLogger(__name__)
+
+WORKERS_START_S = 60.0
+START_WAIT_S = 1.0  # a session start waits this long at most for the holder
+
+
+def _die_with_parent() -> None:  # pragma: no cover (runs in the child before exec)
+    import ctypes
+
+    PR_SET_PDEATHSIG = 1
+    ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+
+
+def local_endpoint(listen: str) -> str:
+    """Where a child worker reaches this node's Zenoh listener."""
+    proto, _, addr = listen.partition("/")
+    host, _, port = addr.rpartition(":")
+    if host in ("0.0.0.0", "[::]", ""):
+        host = "127.0.0.1"
+    return f"{proto}/{host}:{port}"
+
+
+def worker_command(settings: Settings, endpoint: str | None) -> tuple[list[str], dict[str, str]]:
+    """A local worker's command line and environment: the node's settings travel in
+    ``REHAB_*`` variables (the database URL may hold a password: never on a command line,
+    which ``ps`` shows to every user)."""
+    env = dict(os.environ)
+    env.update(
+        REHAB_DATABASE_URL=settings.database_url or settings.db_url,
+        REHAB_DATA_DIR=str(settings.data_dir),
+        REHAB_KEY_PREFIX=settings.key_prefix,
+        REHAB_ADMIT=json.dumps(list(settings.admit)),
+        REHAB_ZENOH_ALLOW_PLAIN="true" if settings.zenoh_allow_plain else "false",
+    )
+    if settings.database_password_file is not None:
+        env["REHAB_DATABASE_PASSWORD_FILE"] = str(settings.database_password_file)
+    if settings.zenoh_config is not None:  # the same identity and router as this node
+        env["REHAB_ZENOH_CONFIG"] = str(settings.zenoh_config)
+    argv = [sys.executable, "-m", "backend.cli", "worker"]
+    if endpoint:
+        argv += ["--zenoh-connect", endpoint]
+    return argv, env
+
+
+class Gateway(LiveManager):
+    def __init__(
+        self,
+        settings: Settings,
+        database: Database,
+        interrupted: Sequence[int] = (),
+        workers: int = 0,
+    ) -> None:
+        super().__init__(settings, database, interrupted)
+        self._zio_subscribe = False
+        self._zio_mode = "router" if not settings.zenoh_connect else None
+        self.n_workers = workers
+        self.children: list[subprocess.Popen[bytes]] = []
+        self.last_status: dict[str, str] = {}
+        self.session_of: dict[str, int | None] = {}
+        self._feed_sub: Any = None
+        self._command: list[str] = []
+        self._env: dict[str, str] = {}
+        self._starts: set[asyncio.Task[None]] = set()
+
+    async def start(self, require_zenoh: bool = False) -> None:
+        await super().start(require_zenoh=require_zenoh)
+        loop = asyncio.get_running_loop()
+        if self.zio is not None and self.zio.session is not None:
+
+            def on_feed(sample: zenoh.Sample) -> None:
+                loop.call_soon_threadsafe(self._on_feed, sample.payload.to_bytes())
+
+            self._feed_sub = self.zio.session.declare_subscriber(feed_key(self.prefix), on_feed)
+        s = self.settings
+        # the children join this node's router, or the router this node is a client of
+        endpoint = s.zenoh_connect or (local_endpoint(s.zenoh_listen) if s.zenoh_listen else None)
+        if self.n_workers and (endpoint or s.zenoh_config) and self.zio is not None:
+            self._command, self._env = worker_command(s, endpoint)
+            for _ in range(self.n_workers):
+                self.children.append(self._spawn())
+            self._tasks.append(asyncio.create_task(self._supervise(), name="workers"))
+            await self._wait_for_workers(loop)
+            log.info("%d local workers started", self.n_workers)
+
+    async def _wait_for_workers(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Ready when the local workers are (their liveliness tokens): a device that
+        publishes once the API answers is heard."""
+        assert self.zio is not None and self.zio.session is not None
+        alive: set[str] = set()
+        ready = asyncio.Event()
+
+        def seen(holder: str, up: bool) -> None:
+            (alive.add if up else alive.discard)(holder)
+            if len(alive) >= self.n_workers:
+                ready.set()
+
+        def on_token(sample: zenoh.Sample) -> None:
+            up = sample.kind == zenoh.SampleKind.PUT
+            loop.call_soon_threadsafe(seen, str(sample.key_expr).rsplit("/", 1)[-1], up)
+
+        sub = self.zio.session.liveliness().declare_subscriber(
+            worker_key(self.prefix, "*"), on_token, history=True
+        )
+        try:
+            await asyncio.wait_for(ready.wait(), WORKERS_START_S)
+        except TimeoutError:
+            log.error(
+                "only %d of %d workers up after %.0f s", len(alive), self.n_workers, WORKERS_START_S
+            )
+        finally:
+            sub.undeclare()  # type: ignore[no-untyped-call]
+
+    def _spawn(self) -> subprocess.Popen[bytes]:
+        return subprocess.Popen(self._command, env=self._env, preexec_fn=_die_with_parent)
+
+    async def _supervise(self) -> None:
+        """A local worker that died is started again (its devices moved on meanwhile)."""
+        while True:
+            await asyncio.sleep(1.0)
+            for i, child in enumerate(self.children):
+                if child.poll() is not None:
+                    log.error("worker %d ended (%s); starting another", child.pid, child.returncode)
+                    self.children[i] = self._spawn()
+
+    async def _finish_local_sessions(self) -> None:
+        """The node stops with its workers and no other worker would take their devices:
+        their sessions end as the one-process service ends them (files complete, report
+        written, stored as interrupted). With other workers alive, they take them over."""
+        pids = {str(c.pid) for c in self.children if c.poll() is None}
+        now = time.time()
+        async with self.database.session() as db:
+            leases = await lease.table(db)
+            rows = (
+                await db.execute(
+                    select(Session.id, Device.name)
+                    .join(Device, Session.device_id == Device.id)
+                    .where(Session.status == "active")
+                )
+            ).all()
+        mine = {d for d, (h, _, x) in leases.items() if x > now and h.split("-")[-2] in pids}
+        others = any(x > now and h.split("-")[-2] not in pids for h, _, x in leases.values())
+        if others or not mine:
+            return
+        for sid, device in rows:
+            if device not in mine:
+                continue
+            try:
+                _, summary = await self._ask(device, {"op": "stop", "session_id": sid})
+            except Exception:
+                log.exception("session %s not finished cleanly", sid)
+                summary = None
+            async with self.database.transaction() as db:
+                session = await get_session(db, sid)
+                if session.status == "active":
+                    await stop_session(db, session, status="interrupted", summary=summary)
+
+    async def close(self) -> None:
+        for task in self._tasks:
+            task.cancel()
+        if self.children:
+            try:
+                await self._finish_local_sessions()
+            except Exception:
+                log.exception("sessions of the local workers not finished")
+        for child in self.children:
+            with contextlib.suppress(ProcessLookupError):
+                child.send_signal(signal.SIGTERM)
+        for child in self.children:
+            try:
+                await asyncio.to_thread(child.wait, 20)
+            except subprocess.TimeoutExpired:
+                child.kill()
+        self.children.clear()
+        if self._feed_sub is not None:
+            self._feed_sub.undeclare()
+            self._feed_sub = None
+        await super().close()
+
+    # ------------------------------------------------------------------ WebSockets
+
+    def _on_feed(self, data: bytes) -> None:
+        try:
+            msg = orjson.loads(data)
+            device = msg["device"]
+        except (orjson.JSONDecodeError, KeyError, TypeError):
+            return
+        text = data.decode("utf-8")
+        sid = self.session_of.get(device)
+        if msg.get("type") == "status":
+            self.last_status[device] = text
+            sid = self.session_of[device] = msg.get("session_id")
+        for c in list(self.hub.clients):
+            if c.overlay is None and c.wants(device, sid):
+                c.send(text)
+
+    def send_initial(self, client: Client) -> None:
+        for name, text in sorted(self.last_status.items()):
+            if client.overlay is None and client.wants(name, self.session_of.get(name)):
+                client.send(text)
+
+    def device_names(self) -> list[str]:
+        return sorted(set(self.stats) | set(self.last_status))
+
+    def changed(self, name: str) -> None:
+        pass  # the workers send the statuses
+
+    def _touch(self, names: Sequence[str], offline: bool = False) -> None:
+        """Devices announced by a liveliness token are registered here (a session can
+        start on them before their data flows); their statistics are their holder's."""
+        seen = utcnow()
+        names = list(names)
+
+        async def op(db: AsyncSession) -> None:
+            for name in names:
+                await touch_device(db, name, seen_at=seen)
+                if offline:
+                    await mark_device_offline(db, name)
+
+        self.db.submit(f"registry of {len(names)} device(s)", op)
+
+    def _each_second(self) -> None:
+        pass
+
+    # ------------------------------------------------------------------ LiveHooks
+
+    def _query(self, device: str, body: dict[str, Any]) -> dict[str, Any] | None:
+        session = self.zio.session if self.zio is not None else None
+        if session is None:
+            raise LiveUnavailable("no Zenoh session")
+        replies = session.get(
+            control_key(self.prefix, device),
+            payload=orjson.dumps(body),
+            target=zenoh.QueryTarget.ALL,
+            timeout=COMMAND_TIMEOUT_S,
+        )
+        for reply in replies:
+            if reply.ok is not None:
+                answer: dict[str, Any] = orjson.loads(reply.ok.payload.to_bytes())
+                return answer
+        return None
+
+    async def _ask(self, device: str, body: dict[str, Any]) -> tuple[bool, Any]:
+        """(a worker answered, its result); raises its refusal."""
+        answer = await asyncio.to_thread(self._query, device, body)
+        if answer is None:
+            return False, None
+        if not answer.get("ok"):
+            raise LiveUnavailable(str(answer.get("error")))
+        return True, answer.get("result")
+
+    async def session_started(self, session: SessionInfo) -> str | None:
+        patient = await self._patient_code(session.patient_id)
+        body = {
+            "op": "start",
+            "session": {
+                "id": session.id,
+                "patient_id": session.patient_id,
+                "params": dict(session.params),
+                "started_at": session.started_at.isoformat(),
+                "recording_path": session.recording_path,
+            },
+            "patient": patient,
+        }
+        # Awaited briefly only: the request's transaction (on SQLite, the database's one
+        # write lock) stays open until the hook returns, and the workers' lease renewals
+        # wait for it. Normally the holder has started the session (its first message is
+        # recorded) before the request returns; if not, it starts it on this query later,
+        # or from the database within a second (workers follow it).
+        task = asyncio.create_task(self._start_on_holder(session, body))
+        self._starts.add(task)
+        task.add_done_callback(self._starts.discard)
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(asyncio.shield(task), START_WAIT_S)
+        return files.recording_relpath(session.id)
+
+    async def _start_on_holder(self, session: SessionInfo, body: dict[str, Any]) -> None:
+        try:
+            answered, _ = await self._ask(session.device, body)
+        except Exception:
+            log.exception("session %s: the holder of %s refused it", session.id, session.device)
+            return
+        if not answered:
+            log.info("session %s: no worker holds %s yet", session.id, session.device)
+
+    async def session_stopped(self, session: SessionInfo) -> dict[str, Any] | None:
+        answered, result = await self._ask(session.device, {"op": "stop", "session_id": session.id})
+        if answered and isinstance(result, dict):
+            return result
+        return None
+
+    async def set_nominal_shoulder(
+        self, session: SessionInfo, point: Point | None, from_estimate: bool
+    ) -> Point | None:
+        pt = None if point is None else [float(x) for x in point]
+        body = {"op": "nominal", "session_id": session.id, "point": pt}
+        answered, result = await self._ask(session.device, {**body, "from_estimate": from_estimate})
+        if not answered:
+            raise LiveUnavailable("no worker holds the device")
+        return None if result is None else [float(x) for x in result]
+
+    def live_report(self, session_id: int, device: str) -> dict[str, Any] | None:
+        return None
+
+    def is_running(self, session_id: int, device: str) -> bool:
+        return self.session_of.get(device) == session_id
+
+    def flush_session(self, session_id: int, device: str) -> None:
+        pass  # the holder flushes every 0.25 s
+
+
+def make_live(
+    settings: Settings, database: Database, interrupted: Sequence[int] = ()
+) -> LiveManager:
+    """One process for everything (``workers`` unset: tests, the demo) or an API node."""
+    if settings.workers is None:
+        return LiveManager(settings, database, interrupted)
+    return Gateway(settings, database, interrupted, workers=settings.workers)
+
+
+def default_workers() -> int:
+    return os.cpu_count() or 1

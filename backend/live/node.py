@@ -1,0 +1,595 @@
+"""``rehab worker``: runs the pipelines of the devices it holds a lease on.
+
+A :class:`WorkerNode` is the live manager restricted to its leased devices:
+
+- Zenoh: the device data subscription, filtered on the key before any copy (a device held
+  by another worker costs a key parse); estimates and feedback published as before; a
+  liveliness token ``<prefix>/@worker/<id>``; a queryable ``<prefix>/@ctl/*`` answering the
+  API node's session commands for the devices held (others stay silent); the dashboard's
+  messages on ``<prefix>/@feed/<id>`` for the API node's WebSockets.
+- Leases (:mod:`backend.live.lease`), renewed every ``RENEW_S``; a device whose lease is
+  not surely held stops at once (no processing, publishing or writing).
+- The database is the truth about sessions: on taking a device, and every second, the
+  worker runs the session the database says is active on it. A session that already has a
+  recording is *taken over*: its complete lines are replayed (in a thread) through a fresh
+  pipeline into new files, which then replace the old ones; new messages wait meanwhile.
+- Back-pressure: a worker whose devices' queues or loop lag show it falling behind, or
+  holding ``max_devices``, takes no new lease (its devices stay; others take the new ones).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import threading
+import time
+from collections.abc import Iterator, Sequence
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import orjson
+import zenoh
+from sqlalchemy import Engine, func, select
+from sqlalchemy.ext.asyncio import AsyncSession
+
+from backend import keys, recording
+from backend.db.engine import Database
+from backend.db.models import Cycle, Device, Patient, Session
+from backend.db.sessions import record_cycle
+from backend.deps import LiveUnavailable, SessionInfo
+from backend.live import files, lease
+from backend.live.devices import DeviceStats
+from backend.live.ingest import RawMessage
+from backend.live.manager import COMMAND_TIMEOUT_S, LiveManager
+from backend.live.run import LiveRun, SessionContext, rows_ready
+from backend.live.worker import DeviceWorker, SetNominal, StartSession, StopSession
+from backend.settings import Settings
+from estimators.output import Output
+from estimators.params import PipelineParams
+from estimators.verdicts import CycleVerdict
+
+log = logging.getLogger(__name__)
+
+RECONCILE_S = 1.0  # sessions of the held devices compared with the database this often
+SEEN_S = 2.0  # a device not heard from for this long is no candidate for a lease
+LAG_LIMIT_S = 0.1  # the loop this late: falling behind, no new leases
+QUEUE_LIMIT = 0.5  # a device queue this full (fraction): falling behind
+FRESH_START_S = 5.0  # a session started by query this recently may not be committed yet
+
+
+def worker_key(prefix: str, holder: str) -> str:
+    return f"{prefix}/@worker/{holder}"
+
+
+def control_key(prefix: str, device: str = "*") -> str:
+    return f"{prefix}/@ctl/{device}"
+
+
+def feed_key(prefix: str, holder: str = "*") -> str:
+    return f"{prefix}/@feed/{holder}"
+
+
+class FeedForwarder:
+    """Stands in the worker's hub as one dashboard client: every therapist message goes on
+    Zenoh to the API nodes (which fan it out to their WebSockets)."""
+
+    overlay: tuple[str, int] | None = None
+    dropped = 0
+
+    def __init__(self, publisher: zenoh.Publisher) -> None:
+        self._pub = publisher
+
+    def wants(self, device: str, session_id: int | None) -> bool:
+        return True
+
+    def send(self, text: str | None) -> None:
+        if text is not None:
+            try:
+                self._pub.put(text)
+            except Exception:
+                self.dropped += 1
+
+
+def _replay_lines(path: Path) -> Iterator[tuple[str, bytes]]:
+    for line in recording.lines(path):
+        key, payload = recording.parse(line)
+        if key is not None:
+            yield key, bytes(payload)
+
+
+def replay(run: LiveRun, path: Path, prefix: str) -> list[tuple[int, CycleVerdict]]:
+    """The recording's complete lines through ``run`` (into its files, as received), with
+    the bookkeeping a live worker does on its outputs; returns the cycles (index, verdict)."""
+    cycles: list[tuple[int, CycleVerdict]] = []
+
+    def absorb(out: Output | None) -> None:
+        if out is None:
+            return
+        if out.n:
+            run.converged = bool(out.rows["heading_converged"][-1])
+            run.nominal_change(out)
+        for v in out.cycles:
+            if v.compensatory is not None:
+                cycles.append((run.cycle_index, v))
+                run.cycle_index += 1
+
+    for key, payload in _replay_lines(path):
+        try:
+            kind: str = keys.parse(key, prefix).kind
+        except keys.KeyError_:
+            kind = "unknown"
+        run.ingest(RawMessage(key, payload, len(payload), 0.0, kind))
+        if run.fed_since_poll and rows_ready(run.pipeline):
+            absorb(run.poll())
+    if run.fed_since_poll:
+        absorb(run.poll())
+    return cycles
+
+
+class WorkerNode(LiveManager):
+    def __init__(
+        self, settings: Settings, database: Database, max_devices: int = 0, router: bool = False
+    ) -> None:
+        super().__init__(settings, database)
+        if router:  # this machine's router, joined to --zenoh-connect's (router to router)
+            self._zio_mode = "router"
+        self.held = lease.Held()
+        self.max_devices = max_devices  # 0: no limit
+        self.seen: dict[str, float] = {}  # device → monotonic time of its last sample
+        self.announced: set[str] = set()  # devices with a liveliness token
+        self._first_unheld: dict[str, float] = {}
+        self.workers_alive: set[str] = set()
+        self._stopped: set[int] = set()  # sessions stopped here: never resumed
+        self._started_at: dict[int, float] = {}
+        self._resuming: set[str] = set()
+        self.lag_s = 0.0
+        self.paused_steps = 0  # lease steps that found devices past their local deadline
+        self.behind = False
+        self.takeovers: list[dict[str, Any]] = []  # (device, session, replay seconds)
+        self._token: Any = None
+        self._extra: list[Any] = []
+        self._feed_pub: zenoh.Publisher | None = None
+        self._stop_leases = threading.Event()
+        self._lease_thread: threading.Thread | None = None
+
+    # ------------------------------------------------------------------ Zenoh
+
+    def _accept(self, key: str) -> bool:
+        """Zenoh's receiving thread: only the held devices' inputs go further."""
+        try:
+            pk = keys.parse(key, self.prefix)
+        except keys.KeyError_:
+            return True  # counted as unknown by the ingest
+        if pk.kind not in keys.INPUT_KINDS:
+            return False
+        self.seen[pk.device] = time.monotonic()
+        return pk.device in self.held.epochs
+
+    async def start(self, require_zenoh: bool = True) -> None:
+        self._zio_accept = self._accept
+        await super().start(require_zenoh=require_zenoh)
+        self.stats.clear()  # only the held devices' (added as leases are taken)
+        zio = self.zio
+        assert zio is not None and zio.session is not None
+        s = zio.session
+        loop = asyncio.get_running_loop()
+        self._token = s.liveliness().declare_token(worker_key(self.prefix, self.held.holder))
+
+        def on_worker(sample: zenoh.Sample) -> None:
+            holder = str(sample.key_expr).rsplit("/", 1)[-1]
+            alive = sample.kind == zenoh.SampleKind.PUT
+            loop.call_soon_threadsafe(self._worker_seen, holder, alive)
+
+        self._extra.append(
+            s.liveliness().declare_subscriber(worker_key(self.prefix, "*"), on_worker, history=True)
+        )
+
+        def on_query(query: zenoh.Query) -> None:
+            device = str(query.key_expr).rsplit("/", 1)[-1]
+            if device not in self.held.epochs:
+                return  # not ours: the query ends without a reply from us
+            payload = query.payload.to_bytes() if query.payload is not None else b"{}"
+            loop.call_soon_threadsafe(self._control, query, device, payload)
+
+        self._extra.append(s.declare_queryable(control_key(self.prefix), on_query))
+        self._feed_pub = s.declare_publisher(
+            feed_key(self.prefix, self.held.holder),
+            congestion_control=zenoh.CongestionControl.DROP,
+        )
+        self.hub.clients.add(FeedForwarder(self._feed_pub))  # type: ignore[arg-type]
+        self._tasks.append(asyncio.create_task(self._measure_lag(), name="worker-lag"))
+        self._lease_thread = threading.Thread(
+            target=self._keep_leases, args=(loop,), name="leases", daemon=True
+        )
+        self._lease_thread.start()
+        self._tasks.append(asyncio.create_task(self._reconcile_loop(), name="worker-sessions"))
+        log.info("worker %s started", self.held.holder)
+
+    def _worker_seen(self, holder: str, alive: bool) -> None:
+        if alive:
+            self.workers_alive.add(holder)
+        else:
+            self.workers_alive.discard(holder)
+
+    async def close(self) -> None:
+        """A clean stop: files flushed (sessions stay active), leases released at once, so
+        another worker takes the devices over and continues their sessions."""
+        self._stop_leases.set()
+        if self._lease_thread is not None:
+            await asyncio.to_thread(self._lease_thread.join, 10)
+        for task in self._tasks:
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        self._tasks.clear()
+        for name, w in self.workers.items():
+            if w.live.files is not None and self.held.valid(name):
+                w.live.files.flush()
+            w.close()
+            self.held.drop(name)
+        self.workers.clear()
+        try:
+            async with self.database.transaction() as db:
+                await lease.release(db, self.held.holder)
+        except Exception:
+            log.exception("leases not released (they expire in %.1f s)", lease.TTL_S)
+        await self.db.close()
+        for x in self._extra:
+            x.undeclare()
+        if self._feed_pub is not None:
+            self._feed_pub.undeclare()  # type: ignore[no-untyped-call]
+        if self._token is not None:
+            self._token.undeclare()
+        self.hub.clients.clear()
+        if self.zio is not None:
+            zio, self.zio = self.zio, None
+            await asyncio.to_thread(zio.close)
+
+    # ------------------------------------------------------------------ devices
+
+    def _worker_for(self, name: str) -> DeviceWorker | None:
+        if name not in self.held.epochs:
+            return None
+        w = self.workers.get(name)
+        if w is None:
+            w = super()._worker_for(name)
+            if w is not None:
+                w.set_lease(self.held.holder, self.held.epochs[name], lambda: self.held.valid(name))
+        return w
+
+    def _device_stats(self, name: str) -> DeviceStats | None:
+        if name not in self.held.epochs:
+            return None  # another worker's device: its holder reports it
+        return super()._device_stats(name)
+
+    def _on_token(self, device: str, alive: bool) -> None:
+        # an announced device is leased before its first message (which a session records)
+        (self.announced.add if alive else self.announced.discard)(device)
+        if device in self.held.epochs:
+            super()._on_token(device, alive)
+
+    def _touch(self, names: Sequence[str], offline: bool = False) -> None:
+        mine = [n for n in names if n in self.held.epochs and n in self.stats]
+        if mine:
+            super()._touch(mine, offline)
+
+    def _falling_behind(self) -> bool:
+        if self.max_devices and len(self.held.epochs) >= self.max_devices:
+            return True
+        if self.lag_s > LAG_LIMIT_S:
+            return True
+        limit = self.settings.ingest_queue_size * QUEUE_LIMIT
+        try:
+            return any(w.queued > limit for w in list(self.workers.values()))
+        except RuntimeError:  # the loop changed the dict meanwhile: ask again next step
+            return True
+
+    async def _measure_lag(self) -> None:
+        loop = asyncio.get_running_loop()
+        while True:
+            t0 = loop.time()
+            await asyncio.sleep(lease.RENEW_S)
+            self.lag_s = max(0.0, loop.time() - t0 - lease.RENEW_S)
+
+    # ------------------------------------------------------------------ the lease thread
+
+    def _keep_leases(self, loop: asyncio.AbstractEventLoop) -> None:
+        """A thread of its own with a blocking connection: the pipelines keeping the event
+        loop busy never delay a renewal (they did, into false expiries, under load)."""
+        engine = lease.sync_engine(self.settings.db_url)
+        try:
+            while not self._stop_leases.wait(lease.RENEW_S):
+                try:
+                    self._lease_step(engine, loop)
+                except Exception as exc:  # the database is away: self-expiry will act
+                    log.warning("lease renewal failed: %s", exc)
+                # A lease past its local deadline is paused, not dropped: the device's
+                # turns stop (no processing, publishing or writing) until a renewal the
+                # database grants again (the row was still ours), or the database says it
+                # moved on (then it is lost). Dropping at once made every slow moment on
+                # a loaded machine a takeover, and each takeover's replay more load.
+                now = time.monotonic()
+                late = [n for n in list(self.held.epochs) if not self.held.valid(n, now)]
+                if late:
+                    self.paused_steps += 1
+        finally:
+            engine.dispose()
+
+    def _to_loop(self, loop: asyncio.AbstractEventLoop, fn: Any, *args: Any) -> None:
+        with contextlib.suppress(RuntimeError):  # the loop closed: the worker is stopping
+            loop.call_soon_threadsafe(fn, *args)
+
+    def _lease_step(self, engine: Engine, loop: asyncio.AbstractEventLoop) -> None:
+        holder = self.held.holder
+        mine = list(self.held.epochs)
+        sent_mono, sent_wall = time.monotonic(), time.time()
+        with engine.begin() as conn:
+            kept = lease.renew_sync(conn, holder, sent_wall) if mine else {}
+            rows = lease.table_sync(conn)  # to try only the free ones: a read, not a write each
+        for name in mine:
+            epoch = self.held.epochs.get(name)
+            if epoch is None:
+                continue
+            if kept.get(name) != epoch:
+                self._to_loop(loop, self._lose, name, "lease not renewed")
+            else:
+                self.held.renewed(name, epoch, sent_mono)
+        # rows of ours no longer held here (dropped by the loop): let them go now
+        stray = [d for d in kept if d not in self.held.epochs]
+        if stray:
+            with engine.begin() as conn:
+                lease.release_sync(conn, holder, stray)
+        self.behind = self._falling_behind()
+        if self.behind:
+            return
+        now = time.monotonic()
+        workers = sorted(self.workers_alive | {holder})
+        for name in list(self.announced - self.seen.keys()):
+            self.seen[name] = now
+        for name, last in list(self.seen.items()):
+            if name in self.held.epochs:
+                self._first_unheld.pop(name, None)
+                continue
+            if now - last > SEEN_S and name not in self.announced:
+                self.seen.pop(name, None)
+                self._first_unheld.pop(name, None)
+                continue
+            first = self._first_unheld.setdefault(name, now)
+            row = rows.get(name)
+            if row is not None and row[2] > sent_wall:
+                continue  # held by another
+            if now - first < lease.rank(name, holder, workers) * lease.RANK_DELAY_S:
+                continue
+            sent_mono, sent_wall = time.monotonic(), time.time()
+            with engine.begin() as conn:
+                taken = lease.acquire_sync(conn, name, holder, sent_wall)
+            if taken is not None:
+                self.held.granted(name, taken, sent_mono)
+                self._to_loop(loop, self._gain, name)
+                if self._falling_behind():
+                    return
+
+    def _gain(self, name: str) -> None:
+        if name not in self.held.epochs:
+            return  # lost again meanwhile
+        log.info("device %s: lease taken (epoch %d)", name, self.held.epochs[name])
+        self._first_unheld.pop(name, None)
+        self._worker_for(name)
+        asyncio.get_running_loop().create_task(self._reconcile([name]))
+
+    def _lose(self, name: str, why: str) -> None:
+        if name not in self.held.epochs and name not in self.workers:
+            return  # already done
+        log.warning("device %s: %s; stopped here", name, why)
+        self.held.drop(name)
+        self.stats.pop(name, None)
+        w = self.workers.pop(name, None)
+        if w is not None:
+            w.close()
+            if w.live.files is not None:
+                w.live.files.abandon()
+
+    # ------------------------------------------------------------------ sessions
+
+    async def _reconcile_loop(self) -> None:
+        while True:
+            await asyncio.sleep(RECONCILE_S)
+            try:
+                await self._reconcile(list(self.held.epochs))
+            except Exception:
+                log.exception("sessions not reconciled with the database")
+
+    async def _reconcile(self, names: Sequence[str]) -> None:
+        """Run on each held device the session the database says is active on it."""
+        if not names:
+            return
+        async with self.database.session() as db:
+            rows = (
+                await db.execute(
+                    select(Session, Device.name, Patient.code)
+                    .join(Device, Session.device_id == Device.id)
+                    .join(Patient, Session.patient_id == Patient.id)
+                    .where(Session.status == "active", Device.name.in_(list(names)))
+                )
+            ).all()
+        active = {name: (s, code) for s, name, code in rows}
+        for name in names:
+            w = self.workers.get(name)
+            if w is None or name in self._resuming or not self.held.valid(name):
+                continue
+            running = w.live.session_id
+            want = active.get(name)
+            if want is not None and want[0].id != running and want[0].id not in self._stopped:
+                s, code = want
+                info = SessionInfo(
+                    id=s.id,
+                    device=name,
+                    patient_id=s.patient_id,
+                    params=s.params,
+                    started_at=s.started_at,
+                    recording_path=s.recording_path,
+                )
+                await self._take_session(w, info, code)
+            elif (
+                want is None
+                and running is not None
+                and time.monotonic() - self._started_at.get(running, 0.0) > FRESH_START_S
+            ):
+                log.warning("device %s: session %s is no longer active; ended", name, running)
+                await self._stop(w, running)
+
+    async def _take_session(self, w: DeviceWorker, info: SessionInfo, patient: str | None) -> None:
+        """Start (or take over) ``info`` on ``w``, once: the query of the API node and the
+        reconciliation with the database may both ask for it."""
+        if w.name in self._resuming:
+            return
+        self._resuming.add(w.name)
+        try:
+            await self._start_or_resume(w, info, patient)
+        finally:
+            self._resuming.discard(w.name)
+
+    async def _start_or_resume(
+        self, w: DeviceWorker, info: SessionInfo, patient: str | None
+    ) -> None:
+        if w.live.session_id == info.id:
+            return
+        params = PipelineParams.from_json(dict(info.params))
+        context = SessionContext(info, params, patient)
+        path = self.settings.data_dir / files.recording_relpath(info.id)
+        if not path.exists():
+            session_files = files.SessionFiles(self.settings.data_dir, info.id)
+            await asyncio.wait_for(w.command(StartSession(context, session_files)), 30)
+            self._started_at[info.id] = time.monotonic()
+            return
+        await self._resume(w, context, path)
+
+    async def _resume(self, w: DeviceWorker, context: SessionContext, path: Path) -> None:
+        """Takeover: replay the recording into new files, then go on from there."""
+        name, sid = w.name, context.info.id
+        epoch = self.held.epochs[name]
+        w.paused = True
+        t0 = time.monotonic()
+        try:
+            staged = files.SessionFiles(self.settings.data_dir, sid, staging=f"epoch{epoch}")
+            run = LiveRun(name, self.prefix, DeviceStats(name), context, staged)
+            cycles = await asyncio.to_thread(replay, run, path, self.prefix)
+            if not self.held.valid(name) or self.held.epochs.get(name) != epoch:
+                staged.abandon()
+                return
+            staged.promote()
+            run.stats = w.stats
+            w.live = run
+            self._started_at[sid] = time.monotonic()
+            self._store_missing_cycles(w, sid, cycles)
+        finally:
+            w.paused = False
+            self.scheduler.ready(w)
+        seconds = time.monotonic() - t0
+        self.takeovers.append({"device": name, "session": sid, "replay_s": round(seconds, 3)})
+        log.warning("device %s: session %s taken over (replayed in %.2f s)", name, sid, seconds)
+        self.changed(name)
+
+    def _store_missing_cycles(
+        self, w: DeviceWorker, sid: int, cycles: list[tuple[int, CycleVerdict]]
+    ) -> None:
+        async def op(db: AsyncSession) -> None:
+            stored = await db.scalar(
+                select(func.count()).select_from(Cycle).where(Cycle.session_id == sid)
+            )
+            for index, v in cycles:
+                if index >= (stored or 0):
+                    await record_cycle(
+                        db,
+                        sid,
+                        start=v.start,
+                        end=v.end,
+                        outside_fraction=v.outside_fraction,
+                        compensatory=bool(v.compensatory),
+                        coverage=v.coverage if v.coverage == v.coverage else None,
+                        peak_displacement_m=v.max_displacement_m
+                        if v.max_displacement_m == v.max_displacement_m
+                        else None,
+                        index=index,
+                    )
+
+        self.db.submit(f"cycles of session {sid} after takeover", op, fence=w.fence)
+
+    async def _stop(self, w: DeviceWorker, sid: int) -> dict[str, Any] | None:
+        self._stopped.add(sid)
+        summary: dict[str, Any] | None = await asyncio.wait_for(
+            w.command(StopSession(sid)), COMMAND_TIMEOUT_S
+        )
+        return summary
+
+    # ------------------------------------------------------------------ control queries
+
+    def _control(self, query: zenoh.Query, device: str, payload: bytes) -> None:
+        asyncio.get_running_loop().create_task(self._answer(query, device, payload))
+
+    async def _answer(self, query: zenoh.Query, device: str, payload: bytes) -> None:
+        try:
+            result = await self._command(device, orjson.loads(payload))
+            reply: dict[str, Any] = {"ok": True, "result": result}
+        except LiveUnavailable as exc:
+            reply = {"ok": False, "error": str(exc)}
+        except Exception as exc:
+            log.exception("device %s: command failed", device)
+            reply = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
+        try:
+            query.reply(query.key_expr, orjson.dumps(reply))
+        except Exception:
+            log.warning("device %s: command answered too late", device, exc_info=True)
+        finally:
+            query.drop()  # type: ignore[no-untyped-call]
+
+    async def _command(self, device: str, msg: dict[str, Any]) -> Any:
+        w = self._worker_for(device)
+        if w is None or not self.held.valid(device):
+            raise LiveUnavailable("this worker no longer holds the device")
+        op = msg["op"]
+        if op == "start":
+            s = msg["session"]
+            info = SessionInfo(
+                id=s["id"],
+                device=device,
+                patient_id=s["patient_id"],
+                params=s["params"],
+                started_at=datetime.fromisoformat(s["started_at"]),
+                recording_path=s.get("recording_path"),
+            )
+            self._stopped.discard(info.id)
+            await self._take_session(w, info, msg.get("patient"))
+            return files.recording_relpath(info.id)
+        if op == "stop":
+            if w.live.session_id != msg["session_id"]:
+                self._stopped.add(msg["session_id"])
+                return None
+            return await self._stop(w, msg["session_id"])
+        if op == "nominal":
+            return await asyncio.wait_for(
+                w.command(SetNominal(msg["session_id"], msg["point"], msg["from_estimate"])),
+                COMMAND_TIMEOUT_S,
+            )
+        raise ValueError(f"unknown command {op!r}")
+
+
+async def run_worker(settings: Settings, max_devices: int = 0, router: bool = False) -> None:
+    """The worker's life: database (migrated by the API node, checked here), Zenoh, leases,
+    until SIGTERM/SIGINT."""
+    import signal
+
+    database = Database(settings.db_url)
+    await database.migrate()  # idempotent: a worker may start before the API node
+    node = WorkerNode(settings, database, max_devices, router)
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(sig, stop.set)
+    await node.start(require_zenoh=True)
+    try:
+        await stop.wait()
+    finally:
+        await node.close()
+        await database.dispose()
