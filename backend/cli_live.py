@@ -83,6 +83,16 @@ def _common(p: argparse.ArgumentParser) -> None:
     )
 
 
+def _workers(text: str) -> int:
+    """``--workers``: a count, or ``auto`` (-1: the core count, resolved at start)."""
+    if text == "auto":
+        return -1
+    n = int(text)
+    if n < 0:
+        raise argparse.ArgumentTypeError("a count >= 0, or auto")
+    return n
+
+
 def _security(p: argparse.ArgumentParser) -> None:
     """Zenoh's TLS and access control, and device admission (docs/security.md)."""
     p.add_argument(
@@ -128,10 +138,11 @@ def add_parser(sub: Any) -> None:
     _security(s)
     s.add_argument(
         "--workers",
-        type=int,
-        metavar="N",
-        help="worker processes running the pipelines (default: the core count; 0: API only, "
-        "for workers started elsewhere with `rehab worker`; REHAB_WORKERS)",
+        type=_workers,
+        metavar="N|auto",
+        help="worker processes running the pipelines ('auto': the core count; 0: API only, "
+        "for workers started elsewhere with `rehab worker`; REHAB_WORKERS); unset: this "
+        "process runs every pipeline itself",
     )
     s.set_defaults(func=cmd_serve)
 
@@ -198,8 +209,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
     except ZenohConfigError as exc:
         print(f"rehab serve: {exc}", file=sys.stderr)
         return 2
-    if args.workers is not None or settings.workers is None:
-        workers = default_workers() if args.workers is None else args.workers
+    if args.workers is not None:  # `--workers auto`: the core count
+        workers = default_workers() if args.workers < 0 else args.workers
         settings = settings.model_copy(update={"workers": workers})
     app = create_app(settings)
     app.state.live_required = True  # a service that cannot open Zenoh must not pretend

@@ -47,6 +47,8 @@ log = logging.getLogger(__name__)
 
 WORKERS_START_S = 60.0
 START_WAIT_S = 1.0  # a session start waits this long at most for the holder
+START_RETRY_S = 5.0  # ... and asks a holder again for this long (then the workers' reconcile)
+START_RETRY_PERIOD_S = 0.1
 
 
 def _die_with_parent() -> None:  # pragma: no cover (runs in the child before exec)
@@ -319,13 +321,22 @@ class Gateway(LiveManager):
         return files.recording_relpath(session.id)
 
     async def _start_on_holder(self, session: SessionInfo, body: dict[str, Any]) -> None:
-        try:
-            answered, _ = await self._ask(session.device, body)
-        except Exception:
-            log.exception("session %s: the holder of %s refused it", session.id, session.device)
-            return
-        if not answered:
-            log.info("session %s: no worker holds %s yet", session.id, session.device)
+        # A device that has announced itself but sent nothing yet is leased within a few
+        # renewal periods: asked again until then, so that its session starts before its
+        # first message rather than at the workers' next look at the database.
+        deadline = time.monotonic() + START_RETRY_S
+        while True:
+            try:
+                answered, _ = await self._ask(session.device, body)
+            except Exception:
+                log.exception("session %s: the holder of %s refused it", session.id, session.device)
+                return
+            if answered:
+                return
+            if time.monotonic() > deadline:
+                log.info("session %s: no worker holds %s yet", session.id, session.device)
+                return
+            await asyncio.sleep(START_RETRY_PERIOD_S)
 
     async def session_stopped(self, session: SessionInfo) -> dict[str, Any] | None:
         answered, result = await self._ask(session.device, {"op": "stop", "session_id": session.id})

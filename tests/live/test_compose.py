@@ -189,3 +189,11 @@ def test_workers_scale_out_on_the_same_router_database_and_volume() -> None:
     shared = {v for v in worker["volumes"]} & {v for v in rehab["volumes"]}
     assert any(v.split(":")[1] == "/data" for v in shared)
     assert worker["depends_on"]["rehab"] == {"condition": "service_healthy"}
+
+
+def test_the_service_is_an_api_node_beside_the_workers() -> None:
+    """With a `worker` service, the service itself runs no pipeline (`--workers 0`): a device
+    is never run both by the service and by a leased worker."""
+    services = compose()["services"]
+    assert "worker" in services
+    assert serve_args(services["rehab"]["command"]).workers == 0
