@@ -668,13 +668,15 @@ def test_device_list_online_offline_and_data_quality(
 
 def test_nothing_is_fetched_from_another_host(service: Service, console: ConsoleLog) -> None:
     """Everything the pages, the overlay and the embedded 3D view loaded or connected to
-    came from this machine's service (its port, or the 3D view's)."""
+    came from this machine's service, on its own port (the 3D view through its proxy path)."""
     service_port = urlsplit(service.url).port
     hosts = {
         urlsplit(u).hostname for u in console.urls if urlsplit(u).scheme not in {"data", "blob"}
     }
     assert hosts == {"127.0.0.1"}, sorted({u for u in console.urls if "127.0.0.1" not in u})
     ports = {urlsplit(u).port for u in console.urls if urlsplit(u).scheme in {"http", "ws"}}
-    assert service_port in ports and len(ports) >= 2, ports  # the 3D view was watched too
+    # the 3D view too: through the service's own port (its authenticated proxy path)
+    assert ports == {service_port}, ports
     paths = {urlsplit(u).path for u in console.urls if urlsplit(u).scheme == "ws"}
     assert {"/api/ws/live", "/api/ws/overlay"} <= paths, paths
+    assert any(p.startswith("/api/viz/view") for p in paths), paths  # the 3D view was watched
