@@ -25,6 +25,7 @@ import numpy as np
 from mcap.writer import Writer
 
 from backend import recording
+from backend.analysis import CSV_HEADER
 from backend.exports import ExportMeta
 
 _NUM = {"type": "number"}
@@ -62,18 +63,7 @@ SCHEMAS: dict[str, dict[str, Any]] = {
             "t": _NUM,
             **{
                 k: {"type": ["number", "null"]}
-                for k in (
-                    "elbow_x",
-                    "elbow_y",
-                    "elbow_z",
-                    "shoulder_x",
-                    "shoulder_y",
-                    "shoulder_z",
-                    "elbow_angle_deg",
-                    "heading_offset_deg",
-                    "heading_converged",
-                    "shoulder_displacement_m",
-                )
+                for k in CSV_HEADER.split(",")[1:-1]  # contract §6, between t and state
             },
             "state": {"type": ["string", "null"]},
         },

@@ -161,14 +161,9 @@ async def _complete(state: State, session: Session) -> Path:
     return path
 
 
-@router.get("/report", responses=_ERRORS)
-async def session_report(
-    session_id: int, therapist: CurrentTherapist, state: State, db: DB
-) -> SessionReportOut:
-    """Cycles with verdicts, shoulder displacement statistics, elbow flexion, upper-arm
-    elevation and azimuth ranges, cycle durations and data quality, with the session's
-    and the patient's metadata."""
-    session = await _load(db, session_id)
+async def _report_of(state: State, session: Session) -> tuple[dict[str, Any], bool]:
+    """The session's report and whether it is provisional (the session still runs: the live
+    side's report so far); 409 when the live side does not run it, 404 without recording."""
     provisional = session.status == "active"
     report: dict[str, Any] | None
     if provisional:
@@ -182,6 +177,18 @@ async def session_report(
         )
         if report is None:
             raise HTTPException(status.HTTP_404_NOT_FOUND, "the session's recording is missing")
+    return report, provisional
+
+
+@router.get("/report", responses=_ERRORS)
+async def session_report(
+    session_id: int, therapist: CurrentTherapist, state: State, db: DB
+) -> SessionReportOut:
+    """Cycles with verdicts, shoulder displacement statistics, elbow flexion, upper-arm
+    elevation and azimuth ranges, cycle durations and data quality, with the session's
+    and the patient's metadata."""
+    session = await _load(db, session_id)
+    report, provisional = await _report_of(state, session)
     audit(db, therapist, "export.report", f"session:{session.id}", {"provisional": provisional})
     await db.commit()
     return SessionReportOut(
@@ -281,19 +288,7 @@ async def session_recording(
 
 async def _clinical(state: State, session: Session) -> tuple[dict[str, Any], ExportMeta]:
     """The session's report (provisional while it runs) and what the exports say about it."""
-    provisional = session.status == "active"
-    report: dict[str, Any] | None
-    if provisional:
-        manager = _manager(state)
-        report = manager.live_report(session.id, session.device.name) if manager else None
-        if report is None:
-            raise HTTPException(status.HTTP_409_CONFLICT, "the live side does not run it")
-    else:
-        report = await files.ensure_outputs(
-            _recording(state, session), session.params, session.device.name
-        )
-        if report is None:
-            raise HTTPException(status.HTTP_404_NOT_FOUND, "the session's recording is missing")
+    report, provisional = await _report_of(state, session)
     meta = ExportMeta(
         session=str(session.id),
         device=session.device.name,
