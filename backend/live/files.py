@@ -108,6 +108,10 @@ class SessionFiles:
         else:
             rec = rec.with_name(f"{session_id}.{staging}{SUFFIX}")  # still .gz
             out = out.with_name(f"{out.name}.{staging}")
+            # left by an earlier takeover attempt of this holder and epoch, which failed:
+            # no one else writes under this name (the epoch is this holder's alone)
+            rec.unlink(missing_ok=True)
+            shutil.rmtree(out, ignore_errors=True)
         out.mkdir(mode=0o700)
         # level 1: a third of level 6's CPU for ~20 % more bytes (the live loop is the
         # scarce resource; a recording can be recompressed offline)

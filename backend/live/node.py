@@ -474,9 +474,16 @@ class WorkerNode(LiveManager):
         try:
             staged = files.SessionFiles(self.settings.data_dir, sid, staging=f"epoch{epoch}")
             run = LiveRun(name, self.prefix, DeviceStats(name), context, staged)
-            cycles = await asyncio.to_thread(replay, run, path, self.prefix)
+            try:
+                cycles = await asyncio.to_thread(replay, run, path, self.prefix)
+            except BaseException:
+                log.exception("device %s: replay of session %s failed", name, sid)
+                staged.close(None)  # the next attempt starts its staged files afresh
+                raise
             if not self.held.valid(name) or self.held.epochs.get(name) != epoch:
-                staged.abandon()
+                # lost, or paused past its local deadline (renewals late under load): a
+                # later attempt, at this epoch or another, starts its staged files afresh
+                staged.close(None)
                 return
             staged.promote()
             run.stats = w.stats

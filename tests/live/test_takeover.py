@@ -71,3 +71,18 @@ def test_replay_then_continue_equals_analysis(tmp_path: Path, gap: int) -> None:
     )
     assert (out / "report.json").read_text() == dump_report(want)
     assert sorted(p.name for p in (tmp_path / "recordings").iterdir()) == ["1", "1.jsonl.gz"]
+
+
+def test_a_failed_takeover_attempt_does_not_block_the_next(tmp_path: Path) -> None:
+    """A takeover attempt given up (the lease paused while replaying under load) leaves its
+    staged files; the next attempt at the same epoch starts them afresh and can promote
+    them. (Found in a fresh-clone run: every later attempt failed with FileExistsError and
+    the session never resumed.)"""
+    first = SessionFiles(tmp_path, 3, staging="epoch2")
+    first.recorder.append("rehab/d/event", {"t": 1.0, "type": "cycle_start"})
+    first.close(None)
+    again = SessionFiles(tmp_path, 3, staging="epoch2")
+    again.promote()
+    again.close(None)
+    assert list(recording.read(again.recording_path)) == []  # not the abandoned attempt's line
+    assert (again.out / "estimates.csv").read_text() == CSV_HEADER + "\n"
