@@ -36,6 +36,7 @@ import httpx
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from benchmarks.serving import wait_healthy  # noqa: E402
 from simulator import SimConfig, simulate  # noqa: E402  (the repository on the path first)
 from simulator.publish import DeviceThread, prepare  # noqa: E402
 
@@ -82,18 +83,7 @@ def start_service(data: Path) -> tuple[subprocess.Popen[bytes], str, str, dict[s
         stderr=subprocess.STDOUT,
     )  # fmt: skip
     url = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 60
-    while True:
-        if proc.poll() is not None:
-            raise SystemExit(f"rehab serve exited:\n{(data / 'service.log').read_text()}")
-        try:
-            if httpx.get(url + "/api/health", timeout=1).status_code == 200:
-                break
-        except httpx.HTTPError:
-            pass
-        if time.monotonic() > deadline:
-            raise SystemExit("rehab serve did not start")
-        time.sleep(0.2)
+    wait_healthy(proc, url, log=data / "service.log")
     creds = dict(line.split(": ", 1) for line in
                  (data / "data" / "admin-credentials.txt").read_text().splitlines())  # fmt: skip
     return proc, url, f"tcp/127.0.0.1:{zport}", creds

@@ -45,6 +45,7 @@ from backend.analysis import analyze  # noqa: E402
 from backend.auth.first_admin import read_admin_credentials  # noqa: E402
 from backend.live.files import outputs_dir  # noqa: E402
 from backend.settings import Settings  # noqa: E402
+from benchmarks.serving import wait_healthy  # noqa: E402
 from estimators.params import PipelineParams  # noqa: E402
 from simulator import SimConfig, simulate  # noqa: E402
 from simulator.publish import Publisher, play, prepare  # noqa: E402
@@ -250,18 +251,7 @@ def run(
     )  # fmt: skip
     out: dict[str, Any] = {"work": str(work)}
     try:
-        deadline = time.monotonic() + 60
-        while True:
-            if svc.poll() is not None:
-                raise SystemExit(f"service exited: {(work / 'service.log').read_text()}")
-            try:
-                if httpx.get(url + "/api/health", timeout=1).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                pass
-            if time.monotonic() > deadline:
-                raise SystemExit("service did not start")
-            time.sleep(0.2)
+        wait_healthy(svc, url, log=work / "service.log")
         creds = read_admin_credentials(Settings(data_dir=work / "data"))
         assert creds is not None
         api = httpx.Client(base_url=url, timeout=60.0)

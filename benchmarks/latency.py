@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from serving import wait_healthy  # benchmarks/ is the script's own directory
 
 REPO = Path(__file__).resolve().parents[1]
 TARGET_P99_MS = 50.0
@@ -285,16 +286,7 @@ def run(
     procs: list[subprocess.Popen[str]] = []
     remote: list[subprocess.Popen[bytes]] = []
     try:
-        deadline = time.monotonic() + 180  # the node waits for its workers; a loaded machine
-        while True:
-            try:
-                if httpx.get(url + "/api/health", timeout=1).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                pass
-            if time.monotonic() > deadline or service.poll() is not None:
-                raise RuntimeError("service did not start")
-            time.sleep(0.2)
+        wait_healthy(service, url, timeout=180)  # the node waits for its workers
         for _ in range(worker_routers):
             remote.append(
                 subprocess.Popen(
