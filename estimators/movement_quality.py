@@ -156,28 +156,23 @@ def movement_units(speed: Array, prominence: float = 0.1, min_prominence: float 
 
 
 @functools.lru_cache(maxsize=64)
-def _lowpass(order: int, cutoff_hz: float, fs: float) -> tuple[Array, Array]:
-    """Butterworth low-pass as second-order sections and their steady-state initial
-    conditions (designing them cost more than filtering a cycle)."""
+def _lowpass(order: int, cutoff_hz: float, fs: float) -> Array:
+    """Butterworth low-pass as second-order sections (designing them cost more than
+    filtering a cycle; the grid repeats from cycle to cycle)."""
     sos: Array = signal.butter(order, cutoff_hz, fs=fs, output="sos")
-    zi: Array = signal.sosfilt_zi(sos)
-    return sos, zi
+    sos.setflags(write=False)  # shared by every call
+    return sos
 
 
 def filtfilt(x: Array, order: int, cutoff_hz: float, fs: float) -> Array:
-    """Zero-lag Butterworth low-pass of ``x`` (N, k) along axis 0: scipy.signal.sosfiltfilt's
-    method (odd extension by its default pad length, steady-state initial conditions), with
-    the design cached."""
-    sos, zi = _lowpass(order, cutoff_hz, fs)
+    """Zero-lag Butterworth low-pass of ``x`` (N, k) along axis 0: scipy's ``sosfiltfilt``
+    with its default odd extension, the pad shortened for a cycle shorter than it."""
+    sos = _lowpass(order, cutoff_hz, fs)
     pad = min(3 * (2 * len(sos) + 1), len(x) - 1)
     if pad <= 0:
         return x
-    ext = np.concatenate((2 * x[:1] - x[pad:0:-1], x, 2 * x[-1:] - x[-2 : -pad - 2 : -1]))
-    sos = sos.copy()  # scipy's sosfilt wants a writable array
-    y, _ = signal.sosfilt(sos, ext, axis=0, zi=zi[:, :, None] * ext[0])
-    y = y[::-1]
-    y, _ = signal.sosfilt(sos, y, axis=0, zi=zi[:, :, None] * y[0])
-    out: Array = y[::-1][pad:-pad]
+    # a copy: the cached design stays read-only, and scipy's sosfilt wants a writable one
+    out: Array = signal.sosfiltfilt(sos.copy(), x, axis=0, padlen=pad)
     return out
 
 
