@@ -154,8 +154,12 @@ class SecurityHeaders:
                     for k, v in message.get("headers", [])
                     if not (api and k.lower() == b"cache-control")
                 ]
-                headers.append((b"x-content-type-options", b"nosniff"))
-                headers.append((b"referrer-policy", b"no-referrer"))
+                present = {k.lower() for k, _ in headers}
+                # the pages set their own (backend/static.py): added where missing, never twice
+                for name, value in ((b"x-content-type-options", b"nosniff"),
+                                    (b"referrer-policy", b"no-referrer")):  # fmt: skip
+                    if name not in present:
+                        headers.append((name, value))
                 if api:
                     headers.append((b"cache-control", b"no-store"))
                 message = {**message, "headers": headers}
