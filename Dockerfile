@@ -12,6 +12,8 @@ COPY pyproject.toml constraints.txt README.md LICENSE ./
 COPY backend backend
 COPY estimators estimators
 COPY simulator simulator
+COPY protocol protocol
+COPY evaluation evaluation
 # editable: the backend serves frontend/dist from beside its sources
 RUN pip install --no-cache-dir -c constraints.txt -e . \
     && useradd --system --home-dir /data rehab && mkdir -p /data && chown rehab /data

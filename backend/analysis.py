@@ -22,11 +22,12 @@ from typing import Any
 
 import numpy as np
 
-from backend import clinical, keys, recording, wire
+from backend import clinical
 from backend.clock_guard import ClockGuard, Verdict
 from estimators.output import Output, RowTable, concat_rows
 from estimators.params import PipelineParams
 from estimators.pipeline import Pipeline
+from protocol import keys, recording, wire
 
 CSV_HEADER = (
     "t,elbow_x,elbow_y,elbow_z,shoulder_x,shoulder_y,shoulder_z,elbow_angle_deg,"

@@ -1,7 +1,7 @@
 """``rehab analyze`` for a wearable recording (contract §8): DIR/joints.csv and DIR/report.json.
 
 Chosen by the parameter file's ``"mode": "wearable"`` before the robot pipeline's parameters
-are read. Messages are validated by :mod:`backend.wire` (the one schema); every line that
+are read. Messages are validated by :mod:`protocol.wire` (the one schema); every line that
 cannot be used is counted by reason in the report, never a crash.
 """
 
@@ -15,9 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from backend import keys, recording, wire
 from estimators.wearable import tracker
 from estimators.wearable.params import WearableParams, WearableParamsError
+from protocol import keys, recording, wire
 
 JOINTS_NAME = "joints.csv"
 REPORT_NAME = "report.json"

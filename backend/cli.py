@@ -129,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
 
     sim_cli.add_parser(sub)
 
-    from backend import evaluate
+    from evaluation import evaluate
 
     evaluate.add_parser(sub)
 

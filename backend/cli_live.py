@@ -196,8 +196,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
     logging.basicConfig(level=args.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
     settings = settings_from_args(args)
-    from backend.live.zenoh_io import make_config
-    from backend.zenoh_config import ZenohConfigError
+    from protocol.zenoh_config import ZenohConfigError, make_config
 
     try:  # a refused Zenoh set-up: one clear line, not a lifespan traceback
         make_config(

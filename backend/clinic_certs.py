@@ -15,7 +15,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from backend import keys
+from protocol import keys
 
 
 @dataclass(frozen=True)

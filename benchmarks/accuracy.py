@@ -1,7 +1,7 @@
 """Accuracy on simulated sessions: the paper's tables, paper method beside the improved one.
 
 For each subject (seed): simulate an 8-minute session, run `rehab analyze` with each method,
-compare with the ground truth (`backend.evaluate`), and pool the errors over subjects.
+compare with the ground truth (`evaluation.evaluate`), and pool the errors over subjects.
 Errors are taken after heading convergence; the pipeline keeps its default arm parameters.
 
     python benchmarks/accuracy.py [--seeds 1 2 3 4 5] [--duration 480] [--json out.json]
@@ -21,10 +21,10 @@ from typing import Any
 
 import numpy as np
 
-from backend import recording
 from backend.analysis import analyze
-from backend.evaluate import evaluate, load_truth, stats
 from estimators.params import PipelineParams
+from evaluation.evaluate import evaluate, load_truth, stats
+from protocol import recording
 from simulator import SimConfig, simulate
 
 METHODS = {

@@ -2,7 +2,7 @@
 
 Data: BROAD (D. Laidig, M. Caruso, A. Cereatti, T. Seel, "BROAD—A Benchmark for Robust
 Inertial Orientation Estimation", Data 6(7):72, 2021, https://doi.org/10.3390/data6070072),
-CC-BY-4.0. See :mod:`backend.broad` for the conversion and the error definitions.
+CC-BY-4.0. See :mod:`evaluation.broad` for the conversion and the error definitions.
 
 Per trial: heading convergence time, full orientation error (heading included) of ``q_RA``
 after convergence over ``movement`` samples (median, 95th percentile), the inclination
@@ -28,9 +28,10 @@ from typing import Any
 
 import numpy as np
 
-from backend import broad, wire
 from estimators.params import PipelineParams
 from estimators.pipeline import Pipeline
+from evaluation import broad
+from protocol import wire
 
 METHODS = {"improved": PipelineParams(), "paper": PipelineParams(method="paper")}
 

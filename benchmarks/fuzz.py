@@ -40,13 +40,13 @@ import httpx
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from backend import recording, wire  # noqa: E402
 from backend.analysis import analyze  # noqa: E402
 from backend.auth.first_admin import read_admin_credentials  # noqa: E402
 from backend.live.files import outputs_dir  # noqa: E402
 from backend.settings import Settings  # noqa: E402
 from benchmarks.serving import wait_healthy  # noqa: E402
 from estimators.params import PipelineParams  # noqa: E402
+from protocol import recording, wire  # noqa: E402
 from simulator import SimConfig, simulate  # noqa: E402
 from simulator.publish import Publisher, play, prepare  # noqa: E402
 
@@ -159,7 +159,7 @@ FUZZER = """
 import random, sys, time, zenoh
 sys.path.insert(0, sys.argv[4])
 from benchmarks.fuzz import hostile
-from backend.live.zenoh_io import make_config
+from protocol.zenoh_config import make_config
 endpoint, n, seed = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 rng = random.Random(seed)
 s = zenoh.open(make_config(connect=endpoint, mode="peer"))
@@ -179,7 +179,7 @@ s.close()
 FLOODER = """
 import json, sys, time, zenoh
 sys.path.insert(0, sys.argv[4])
-from backend.live.zenoh_io import make_config
+from protocol.zenoh_config import make_config
 endpoint, seconds, names = sys.argv[1], float(sys.argv[2]), sys.argv[3].split(",")
 
 def imu(n, t0):

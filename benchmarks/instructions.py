@@ -26,9 +26,9 @@ import sys
 import tempfile
 from pathlib import Path
 
-from backend import wire
 from estimators.params import PipelineParams
 from estimators.pipeline import Pipeline
+from protocol import wire
 from simulator import SimConfig, simulate
 
 

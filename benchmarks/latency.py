@@ -113,7 +113,7 @@ def subscriber(args: argparse.Namespace) -> None:
     import zenoh
     from websockets.sync.client import connect
 
-    from backend.live.zenoh_io import make_config
+    from protocol.zenoh_config import make_config
 
     zrecv: dict[str, list[tuple[float, float]]] = {}
     wrecv: dict[str, list[tuple[float, float]]] = {}

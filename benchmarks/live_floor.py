@@ -25,7 +25,7 @@ import time
 import numpy as np
 from vqf import VQF
 
-from backend import wire
+from protocol import wire
 from simulator import SimConfig, simulate
 
 

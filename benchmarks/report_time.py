@@ -16,10 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
-from backend import clinical, recording
+from backend import clinical
 from backend.analysis import analyze, gc_paused, read_estimates
 from backend.exports import ExportMeta, fhir, mcap_file, pdf
 from estimators.params import PipelineParams
+from protocol import recording
 from simulator import SimConfig, simulate
 
 

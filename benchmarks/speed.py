@@ -19,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from backend import recording, wire
 from backend.analysis import analyze, gc_paused
 from estimators import heading as hd
 from estimators.params import PipelineParams
 from estimators.pipeline import Pipeline
+from protocol import recording, wire
 from simulator import SimConfig, simulate
 
 

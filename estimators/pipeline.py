@@ -54,7 +54,7 @@ Array: TypeAlias = NDArray[np.float64]
 Idx: TypeAlias = NDArray[Any]  # integer and boolean arrays
 
 
-# The pipeline takes any message objects with backend.wire's attributes (duck-typed).
+# The pipeline takes any message objects with protocol.wire's attributes (duck-typed).
 
 
 class _Stream:

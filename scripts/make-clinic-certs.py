@@ -29,7 +29,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from backend import clinic_certs, keys, zenoh_config
+from backend import clinic_certs
+from protocol import keys, zenoh_config
 
 SERVICE = "rehab-service"
 

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from backend import recording
+from protocol import recording
 from simulator.config import SimConfig
 
 RECORDING_NAME = "recording.jsonl.gz"

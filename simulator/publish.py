@@ -27,8 +27,8 @@ from typing import Any
 import orjson
 import zenoh
 
-from backend import keys, recording, wire
-from backend.live.zenoh_io import make_config
+from protocol import keys, recording, wire
+from protocol.zenoh_config import make_config
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +53,7 @@ def _release_time(obj: Any) -> float | None:
 
 def prepare(messages: Iterable[tuple[str | None, Any]]) -> list[Outgoing]:
     """``(key, payload)`` pairs (payload objects, JSON bytes, or the raw payloads of
-    :func:`backend.recording.read`) → what to send and when. Messages without a usable
+    :func:`protocol.recording.read`) → what to send and when. Messages without a usable
     time go out with the one before them; times never run backwards."""
     out: list[Outgoing] = []
     last = None

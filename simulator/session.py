@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
-from backend import wire
+from protocol import wire
 from simulator import quat
 from simulator.arm import ACTIVITY_RAMP_S, ArmModel, elbow_angle_deg
 from simulator.config import COMPENSATORY, PHASE_NAMES, TRANSITION, SimConfig

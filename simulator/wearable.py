@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from backend import recording, wire
+from protocol import recording, wire
 from simulator import wearable_moves as moves
 from simulator.wearable_arm import F64, Mount, imu_readings, joint_positions
 

@@ -7,7 +7,7 @@ from typing import Any
 
 import pytest
 
-from backend import wire
+from protocol import wire
 from simulator import SimConfig, Simulation, simulate
 
 SHORT_LAYOUT = (("rest", 5.0), ("proper", 45.0), ("transition", 10.0), ("compensatory", 40.0))

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from backend import recording
 from backend.analysis import CSV_HEADER, read_estimates
 from backend.cli import main
+from protocol import recording
 from tests.conftest import Session
 
 

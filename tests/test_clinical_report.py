@@ -10,10 +10,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from backend import recording
 from backend.cli import main
 from estimators import anatomy
 from estimators import movement_quality as mq
+from protocol import recording
 from tests.conftest import Session
 
 

@@ -15,13 +15,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from backend import recording, wire
 from backend.analysis import analyze
 from backend.clock_guard import CONFIRM, NEAR_S, ClockGuard, Verdict
 from backend.live.devices import DeviceStats
 from backend.live.ingest import RawMessage
 from backend.live.run import LiveRun
 from estimators.params import PipelineParams
+from protocol import recording, wire
 from simulator import SimConfig, simulate
 
 DEV = "clk01"

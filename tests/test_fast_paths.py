@@ -19,7 +19,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from backend import analysis, keys, recording, wire
+from backend import analysis
+from protocol import keys, recording, wire
 
 KEYS = [
     "rehab/d/imu/upperarm",

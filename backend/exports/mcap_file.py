@@ -24,9 +24,9 @@ from typing import IO, Any
 import numpy as np
 from mcap.writer import Writer
 
-from backend import recording
 from backend.analysis import CSV_HEADER
 from backend.exports import ExportMeta
+from protocol import recording
 
 _NUM = {"type": "number"}
 _VEC = {"type": "array", "items": _NUM, "minItems": 3, "maxItems": 3}

@@ -19,9 +19,9 @@ from typing import Any
 
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from backend import wire
 from backend.db.audit import audit
 from backend.live.store import DbWriter
+from protocol import wire
 
 RATE = 5.0  # audit rows per second and device, sustained
 BURST = 20.0

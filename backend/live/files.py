@@ -21,9 +21,9 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any
 
-from backend import recording
 from backend.analysis import CSV_HEADER, DETAILS_HEADER, analyze, dump_report
 from estimators.params import PipelineParams
+from protocol import recording
 
 log = logging.getLogger(__name__)
 

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import orjson
 
-from backend import keys, wire
+from protocol import keys, wire
 
 if TYPE_CHECKING:
     from backend.live.worker import DeviceWorker

@@ -50,10 +50,11 @@ from backend.live.worker import (
     StopSession,
     session_summary,
 )
-from backend.live.zenoh_io import RawSample, ZenohIO, make_config
+from backend.live.zenoh_io import RawSample, ZenohIO
 from backend.settings import Settings
 from estimators.params import PipelineParams
 from estimators.pipeline import Pipeline
+from protocol.zenoh_config import make_config
 
 log = logging.getLogger(__name__)
 

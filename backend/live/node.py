@@ -34,7 +34,6 @@ import zenoh
 from sqlalchemy import Engine, func, select
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from backend import keys, recording
 from backend.db.engine import Database
 from backend.db.models import Cycle, Device, Patient, Session
 from backend.db.sessions import record_cycle
@@ -49,6 +48,7 @@ from backend.settings import Settings
 from estimators.output import Output
 from estimators.params import PipelineParams
 from estimators.verdicts import CycleVerdict
+from protocol import keys, recording
 
 log = logging.getLogger(__name__)
 

@@ -16,7 +16,6 @@ from typing import Any
 
 import numpy as np
 
-from backend import keys, wire
 from backend.analysis import DeviceRun, admit
 from backend.deps import SessionInfo
 from backend.live.budget import RecordingBudget
@@ -26,6 +25,7 @@ from backend.live.ingest import RawMessage, recorded_form
 from estimators.output import Output
 from estimators.params import PipelineParams
 from estimators.pipeline import Pipeline
+from protocol import keys, wire
 
 log = logging.getLogger(__name__)
 

@@ -21,7 +21,7 @@ from typing import Any, Protocol
 
 from sqlalchemy.ext.asyncio import AsyncSession
 
-from backend import clinical, wire
+from backend import clinical
 from backend.db.sessions import record_cycle, store_nominal_shoulder
 from backend.deps import LiveUnavailable
 from backend.live import feed
@@ -35,6 +35,7 @@ from backend.live.store import DbWriter
 from backend.live.zenoh_io import ZenohIO
 from estimators.output import Output
 from estimators.verdicts import CycleVerdict
+from protocol import wire
 
 log = logging.getLogger(__name__)
 

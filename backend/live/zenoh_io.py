@@ -13,19 +13,17 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import logging
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import zenoh
 
-from backend import keys, zenoh_config
+from protocol import keys
 
 log = logging.getLogger(__name__)
 
@@ -36,7 +34,8 @@ BUFFER_ITEMS = 1 << 16
 BUFFER_BYTES = 32 << 20  # 256 MiB stayed resident after a flood (issue 21)
 # Samples between Zenoh's network thread and ours: ~0.4 s at 50 devices while the loop holds
 # the GIL (then Zenoh waits, the devices' own queues absorb it); the channel is drained at
-# once, so it holds little, but each slot may hold a message up to RX_MAX_MESSAGE_BYTES.
+# once, so it holds little, but each slot may hold a message up to RX_MAX_MESSAGE_BYTES
+# (protocol.zenoh_config).
 RX_CHANNEL = 1024
 # After taking what has arrived, the receiving thread waits this long before it takes the
 # GIL again. Without the pause it took the GIL about once per 3 samples (~900 times a second
@@ -44,43 +43,6 @@ RX_CHANNEL = 1024
 # loop then waited for it back: ~110 µs per put. With it: ~270 takes a second, ~75 µs per
 # put, for at most 2 ms more on a sample's way in (the channel holds what arrives meanwhile).
 RX_GATHER_S = 0.002
-# Zenoh's own per-message ceiling (default 1 GiB): far above the contract's 1 MiB, low
-# enough that a hostile peer cannot make the router side allocate without bound.
-RX_MAX_MESSAGE_BYTES = 16 << 20
-
-
-def make_config(
-    *,
-    listen: str | None = None,
-    connect: str | None = None,
-    mode: str | None = None,
-    file: Path | None = None,
-    allow_plain: bool = True,
-) -> zenoh.Config:
-    """Explicit endpoints only: multicast scouting is off so that a clinic's services,
-    test runs and devices on one network never discover each other by accident.
-
-    ``file``: a Zenoh JSON5 config (TLS, access control); its own endpoints and mode win.
-    The service passes its ``zenoh_allow_plain`` setting: then plain TCP on a non-loopback
-    address raises :class:`ZenohConfigError` (see :mod:`backend.zenoh_config`)."""
-    cfg = zenoh_config.load(file) if file is not None else zenoh.Config()
-    if file is None or not zenoh_config.endpoints(cfg, "listen") + zenoh_config.endpoints(
-        cfg, "connect"
-    ):
-        cfg.insert_json5(
-            "mode", json.dumps(mode or ("client" if connect and not listen else "peer"))
-        )
-        if listen:
-            cfg.insert_json5("listen/endpoints", json.dumps([listen]))
-        if connect:
-            cfg.insert_json5("connect/endpoints", json.dumps([connect]))
-    zenoh_config.check_transport(
-        zenoh_config.endpoints(cfg, "listen") + zenoh_config.endpoints(cfg, "connect"),
-        allow_plain,
-    )
-    cfg.insert_json5("scouting/multicast/enabled", "false")
-    cfg.insert_json5("transport/link/rx/max_message_size", str(RX_MAX_MESSAGE_BYTES))
-    return cfg
 
 
 @dataclass

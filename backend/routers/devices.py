@@ -7,7 +7,6 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends, HTTPException, Path, status
 from sqlalchemy import select
 
-from backend import keys
 from backend.auth.guards import AdminTherapist, require_admin
 from backend.db.audit import audit
 from backend.db.base import utcnow
@@ -16,6 +15,7 @@ from backend.db.models import Device, Session
 from backend.deps import DB, LiveUnavailable, SettingsDep, State
 from backend.live.manager import LiveManager
 from backend.schemas.devices import DeviceOut
+from protocol import keys
 
 router = APIRouter(prefix="/devices", tags=["devices"])
 

@@ -15,12 +15,12 @@ from typing import Annotated
 from fastapi import APIRouter, Query, WebSocket, WebSocketException, status
 from starlette.websockets import WebSocketDisconnect
 
-from backend import keys
 from backend.auth.guards import CurrentTherapist, OverlayAccess, login_still_valid
 from backend.db.audit import audit
 from backend.deps import State
 from backend.live.hub import Client, dumps
 from backend.live.manager import LiveManager
+from protocol import keys
 
 router = APIRouter(tags=["live"])
 

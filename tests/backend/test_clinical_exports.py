@@ -23,13 +23,13 @@ from mcap.reader import make_reader
 from PIL import Image
 from sqlalchemy import update
 
-from backend import recording
 from backend.analysis import read_estimates
 from backend.cli import main
 from backend.db.models import Session as SessionRow
 from backend.deps import AppState
 from backend.exports import ExportMeta, fhir, mcap_file, pdf
 from backend.settings import Settings
+from protocol import recording
 from tests.backend.test_storage import _patient_and_device, audit_log
 from tests.conftest import Session
 

@@ -20,7 +20,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from backend import analysis, recording
+from backend import analysis
+from protocol import recording
 
 SPECIAL = [0.0, -0.0, 0.5, -0.5, 2.5, 0.0005, 2.0005, 0.301475, -0.234775, 9.9999995]
 SPECIAL += [999.9995, 1e15, 1e17, 1e300, 5e-324, math.inf, -math.inf, math.nan]

@@ -8,12 +8,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from backend import wire
 from estimators.grid_stage import GridStage
 from estimators.imu_stage import ImuStage
 from estimators.output import Quality
 from estimators.params import PipelineParams
 from estimators.robot_stage import RobotStage
+from protocol import wire
 from tests.conftest import Session
 
 Stages = tuple[ImuStage, RobotStage, float]

@@ -10,10 +10,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from backend import wire
 from estimators.imu_stage import ImuStage
 from estimators.output import Quality
 from estimators.params import PipelineParams
+from protocol import wire
 from tests.conftest import Session
 
 Arrays = tuple[np.ndarray, np.ndarray, np.ndarray]

@@ -10,10 +10,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from backend import wire
 from estimators.output import Output
 from estimators.params import PipelineParams
 from estimators.pipeline import Pipeline
+from protocol import wire
 from tests.conftest import Session, make_session
 
 

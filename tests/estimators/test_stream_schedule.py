@@ -15,10 +15,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from backend import wire
 from estimators.output import Output
 from estimators.params import PipelineParams
 from estimators.pipeline import Pipeline
+from protocol import wire
 from simulator import SimConfig, simulate
 
 DT = 1.0 / PipelineParams().fusion_rate_hz

@@ -15,11 +15,11 @@ from typing import Any
 
 import httpx
 
-from backend import recording
 from backend.analysis import CSV_HEADER, analyze
 from backend.live.files import dump_report
 from backend.settings import Settings
 from estimators.params import PipelineParams
+from protocol import recording
 from simulator import SimConfig, simulate
 from simulator.publish import Outgoing, Publisher, play, prepare
 from tests.live.conftest import free_port, login, wait_for

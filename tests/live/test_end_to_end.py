@@ -13,10 +13,10 @@ from typing import Any
 
 import pytest
 
-from backend import recording
 from backend.analysis import CSV_HEADER, DETAILS_HEADER, DeviceRun, analyze
 from backend.live.files import dump_report
 from estimators.params import PipelineParams
+from protocol import recording
 from simulator import SimConfig, simulate
 from simulator.publish import play, prepare
 from tests.live.conftest import Service, wait_for

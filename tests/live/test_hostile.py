@@ -7,9 +7,9 @@ import json
 import threading
 from typing import Any
 
-from backend import keys, wire
 from backend.analysis import CSV_HEADER, analyze
 from estimators.params import PipelineParams
+from protocol import keys, wire
 from simulator import SimConfig, simulate
 from simulator.publish import play, prepare
 from tests.live.conftest import Service, wait_for

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from backend import wire
 from backend.settings import Settings
+from protocol import wire
 from simulator import SimConfig, simulate
 from simulator.publish import Publisher, play, prepare
 from tests.live.conftest import Service, _service, free_port, wait_for

@@ -6,10 +6,10 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from backend import recording
 from backend.analysis import CSV_HEADER, analyze
 from backend.live.files import dump_report
 from estimators.params import PipelineParams
+from protocol import recording
 from simulator import SimConfig, simulate
 from simulator.publish import play, prepare
 from tests.live.conftest import Service, wait_for

@@ -24,11 +24,11 @@ import pytest
 import zenoh
 from sqlalchemy.engine import make_url
 
-from backend import recording
 from backend.analysis import CSV_HEADER, analyze, dump_report
-from backend.live.zenoh_io import make_config
 from backend.settings import Settings
 from estimators.params import PipelineParams
+from protocol import recording
+from protocol.zenoh_config import make_config
 from simulator import SimConfig, simulate
 from simulator.publish import Outgoing, Publisher, play, prepare
 from tests.backend.conftest import _admin_conninfo

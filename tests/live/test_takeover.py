@@ -10,7 +10,6 @@ from pathlib import Path
 import orjson
 import pytest
 
-from backend import keys, recording
 from backend.analysis import CSV_HEADER, analyze, dump_report
 from backend.deps import SessionInfo
 from backend.live.devices import DeviceStats
@@ -19,6 +18,7 @@ from backend.live.ingest import RawMessage
 from backend.live.node import replay
 from backend.live.run import LiveRun, SessionContext, rows_ready
 from estimators.params import PipelineParams
+from protocol import keys, recording
 from simulator import SimConfig, simulate
 
 DEVICE = "tk01"

@@ -16,9 +16,8 @@ from typing import Any
 import pytest
 import zenoh
 
-from backend.live.zenoh_io import make_config
 from backend.settings import Settings
-from backend.zenoh_config import ZenohConfigError
+from protocol.zenoh_config import ZenohConfigError, make_config
 from simulator.publish import Publisher
 from tests.live.conftest import Service, _service, free_port, wait_for
 

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from backend import wire
+from protocol import wire
 from simulator import SimConfig, Simulation, simulate
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from backend import recording, wire
+from protocol import recording, wire
 from simulator import cli
 from simulator.subject import Subject
 from simulator.truth import Truth, load_subject

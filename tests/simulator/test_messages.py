@@ -7,7 +7,7 @@ import json
 
 import numpy as np
 
-from backend import keys, wire
+from protocol import keys, wire
 from simulator import SimConfig, Simulation, simulate
 from tests.simulator.conftest import Streams, decode_all
 

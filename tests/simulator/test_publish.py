@@ -9,9 +9,9 @@ from collections.abc import Iterator
 import pytest
 import zenoh
 
-from backend import keys
 from backend.cli_live import free_port
-from backend.live.zenoh_io import make_config
+from protocol import keys
+from protocol.zenoh_config import make_config
 from simulator import SimConfig, simulate
 from simulator.publish import DeviceThread, prepare
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from backend import keys, recording, wire
 from estimators.wearable.params import WearableParams
+from protocol import keys, recording, wire
 from simulator import wearable as w
 from simulator import wearable_moves as moves
 from simulator.wearable_arm import joint_positions

@@ -1,4 +1,4 @@
-"""BROAD conversion, scoring and the VQF baseline (backend.broad, benchmarks/broad.py).
+"""BROAD conversion, scoring and the VQF baseline (evaluation.broad, benchmarks/broad.py).
 
 Data: BROAD, Laidig et al. 2021 (https://doi.org/10.3390/data6070072), CC-BY-4.0.
 Tests that need the recordings skip when the data directory is missing.
@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 from scipy.signal import butter, sosfiltfilt
 
-from backend import broad, wire
+from evaluation import broad
+from protocol import wire
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def _pick_trial() -> Path | None:

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from backend import keys, wire
+from protocol import keys, wire
 
 IMU = "rehab/dev-1/imu/upperarm"
 ROBOT = "rehab/dev-1/robot"

@@ -25,7 +25,7 @@ import numpy as np
 import orjson
 from numpy.typing import NDArray
 
-from backend import keys, recording
+from protocol import keys, recording
 
 FloatArray: TypeAlias = NDArray[np.float64]
 
@@ -397,8 +397,8 @@ _NAN3 = (math.nan, math.nan, math.nan)
 def decode_lines(
     lines: Iterable[bytes], prefix: str = keys.DEFAULT_PREFIX
 ) -> tuple[list[Decoded], dict[str, Columns]]:
-    """Recording lines (:func:`backend.recording.lines`) as :func:`decode` of what
-    :func:`backend.recording.parse` gives for each, the error returned instead of raised (a
+    """Recording lines (:func:`protocol.recording.lines`) as :func:`decode` of what
+    :func:`protocol.recording.parse` gives for each, the error returned instead of raised (a
     line that is no ``{key, payload}``: ``malformed_line``), and every valid stream payload
     left as a :class:`Span` of its kind's columns. With each item its device."""
     return _decode_items(lines, prefix)

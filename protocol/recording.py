@@ -41,7 +41,7 @@ _LINE = msgspec.json.Decoder(_Line)
 def read(path: str | Path) -> Iterator[Line]:
     """Yield ``(key, payload)`` per line; ``(None, raw_line)`` for a line that is not valid.
 
-    The payload comes back as its raw JSON bytes for :func:`backend.wire.decode`.
+    The payload comes back as its raw JSON bytes for :func:`protocol.wire.decode`.
     """
     for line in lines(path):
         yield parse(line)

@@ -223,3 +223,40 @@ def device_config(*, connect: str, ca: Path, cert: Path, key: Path) -> dict[str,
             }
         },
     }
+
+
+# Zenoh's own per-message ceiling (default 1 GiB): far above the contract's 1 MiB, low
+# enough that a hostile peer cannot make the router side allocate without bound.
+RX_MAX_MESSAGE_BYTES = 16 << 20
+
+
+def make_config(
+    *,
+    listen: str | None = None,
+    connect: str | None = None,
+    mode: str | None = None,
+    file: Path | None = None,
+    allow_plain: bool = True,
+) -> zenoh.Config:
+    """Explicit endpoints only: multicast scouting is off so that a clinic's services,
+    test runs and devices on one network never discover each other by accident.
+
+    ``file``: a Zenoh JSON5 config (TLS, access control); its own endpoints and mode win.
+    The service passes its ``zenoh_allow_plain`` setting: then plain TCP on a non-loopback
+    address raises :class:`ZenohConfigError` (see :func:`check_transport`)."""
+    cfg = load(file) if file is not None else zenoh.Config()
+    if file is None or not endpoints(cfg, "listen") + endpoints(cfg, "connect"):
+        cfg.insert_json5(
+            "mode", json.dumps(mode or ("client" if connect and not listen else "peer"))
+        )
+        if listen:
+            cfg.insert_json5("listen/endpoints", json.dumps([listen]))
+        if connect:
+            cfg.insert_json5("connect/endpoints", json.dumps([connect]))
+    check_transport(
+        endpoints(cfg, "listen") + endpoints(cfg, "connect"),
+        allow_plain,
+    )
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    cfg.insert_json5("transport/link/rx/max_message_size", str(RX_MAX_MESSAGE_BYTES))
+    return cfg

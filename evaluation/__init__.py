@@ -1,0 +1,2 @@
+"""Offline evaluation against ground truth (simulated sessions, the BROAD recordings); not
+part of the service."""
