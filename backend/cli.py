@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import os
 import sys
@@ -10,6 +11,14 @@ import time
 from pathlib import Path
 
 from estimators.params import ParamsError, PipelineParams
+
+# the modules registering the other sub-commands, and the names they register
+_COMMANDS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("simulator.cli", ("simulate",)),
+    ("evaluation.evaluate", ("evaluate",)),
+    ("backend.exports.cli", ("export",)),
+    ("backend.cli_live", ("serve", "worker", "demo")),
+)
 
 
 def _load_params(path: str | None) -> PipelineParams:
@@ -125,21 +134,13 @@ def main(argv: list[str] | None = None) -> int:
     a.add_argument("--device", help="device to analyse when the recording has several")
     a.set_defaults(func=cmd_analyze)
 
-    from simulator import cli as sim_cli
-
-    sim_cli.add_parser(sub)
-
-    from evaluation import evaluate
-
-    evaluate.add_parser(sub)
-
-    from backend.exports import cli as export_cli
-
-    export_cli.add_parser(sub)
-
-    from backend import cli_live
-
-    cli_live.add_parser(sub)
+    # the other commands' modules (and what they import: SciPy, the service stack) are
+    # imported only for the command run, or all of them for ``--help``
+    argv = sys.argv[1:] if argv is None else argv
+    first = argv[0] if argv else ""
+    wanted = [m for m, names in _COMMANDS if first in names]
+    for module in [] if first == "analyze" else wanted or [m for m, _ in _COMMANDS]:
+        importlib.import_module(module).add_parser(sub)
 
     args = ap.parse_args(argv)
     return int(args.func(args))

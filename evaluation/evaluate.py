@@ -15,8 +15,6 @@ from typing import Any
 
 import numpy as np
 
-from backend.analysis import read_estimates
-
 PHASES = {1: "proper", 3: "compensatory"}
 
 
@@ -58,6 +56,8 @@ def truth_cycles(truth: dict[str, Any]) -> list[dict[str, Any]]:
 
 
 def evaluate(analysis_dir: str | Path, truth: dict[str, Any]) -> dict[str, Any]:
+    from backend.analysis import read_estimates  # the analysis stack: only when evaluating
+
     d = Path(analysis_dir)
     est = read_estimates(d / "estimates.csv")
     det = read_estimates(d / "details.csv")

@@ -7,7 +7,6 @@ import sys
 import time
 from pathlib import Path
 
-from simulator import wearable as w
 from simulator.wearable_moves import MOVES
 
 
@@ -31,6 +30,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Write DIR/recording.jsonl.gz, DIR/params.json (contract §8) and DIR/truth.csv."""
+    from simulator import wearable as w  # SciPy: only when simulating, not for every `rehab`
+
     try:
         cfg = w.WearableSimConfig(
             move=args.move,

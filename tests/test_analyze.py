@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -56,6 +58,27 @@ def test_analyze_many_recordings_in_parallel(rec: Path, tmp_path: Path, capsys) 
     assert capsys.readouterr().out.count("estimates") == 3
     assert main(["analyze", str(a), str(tmp_path / "no.jsonl"), "--out", str(tmp_path / "x")]) == 2
     assert not (tmp_path / "x").exists()
+
+
+def test_analyze_imports_neither_the_service_nor_the_simulator(rec: Path, tmp_path: Path) -> None:
+    """Start-up: `rehab analyze` loads only what it runs (not FastAPI, SQLAlchemy, Zenoh, the
+    simulators' SciPy), while `rehab serve` still finds its command."""
+    code = (
+        "import sys; from backend.cli import main; "
+        f"main(['analyze', {str(rec / 'recording.jsonl.gz')!r}, '--out', {str(tmp_path)!r}]); "
+        "print(' '.join(sorted(sys.modules)))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout
+    loaded = set(out.splitlines()[-1].split())
+    assert "backend.analysis" in loaded
+    for heavy in ("fastapi", "sqlalchemy", "zenoh", "uvicorn", "simulator.wearable", "backend.app"):
+        assert heavy not in loaded, heavy
+    serve = subprocess.run(
+        [sys.executable, "-m", "backend.cli", "serve", "--help"], capture_output=True, text=True
+    )
+    assert serve.returncode == 0 and "--workers" in serve.stdout
 
 
 def test_analyze_is_deterministic(rec: Path) -> None:

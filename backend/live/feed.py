@@ -1,4 +1,5 @@
-"""The WebSocket messages (the protocol the dashboard and the game overlay code against).
+"""The WebSocket messages (the protocol the dashboard and the game overlay code against),
+built as the typed dicts of :mod:`backend.schemas.live`, where they are defined.
 
 Therapist feed (``/api/ws/live``)::
 
@@ -23,12 +24,13 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import orjson
 from numpy.typing import NDArray
 
+from backend.schemas.live import CycleMsg, IndicatorState, OverlayStatusMsg, StateMsg, StatusMsg
 from estimators.output import RowTable, column_index
 
 Rows = dict[str, list[Any]]
@@ -263,11 +265,12 @@ def status_message(
     ingest: dict[str, Any],
     tolerance_m: float,
     max_outside_fraction: float,
-) -> dict[str, Any]:
+) -> StatusMsg:
     quality = dict(pipeline.get("quality", {}))
     gaps = quality.get("gaps", [])
     quality["gaps"] = gaps[-20:]  # the latest; all of them are in the report
-    return {
+    # the pipeline's status keys are checked against the model by the live tests
+    msg: dict[str, Any] = {
         "type": "status",
         "device": device,
         "online": online,
@@ -280,24 +283,25 @@ def status_message(
         "tolerance_m": tolerance_m,  # of the running parameters (the indicator's circle)
         "max_outside_fraction": max_outside_fraction,
     }
+    return cast(StatusMsg, msg)
 
 
-def overlay_status(status: dict[str, Any]) -> dict[str, Any]:
+def overlay_status(status: StatusMsg) -> OverlayStatusMsg:
     return {
         "type": "status",
         "device": status["device"],
-        "heading_converged": status.get("heading_converged", False),
-        "convergence_progress": status.get("convergence_progress", 0.0),
-        "online": status.get("online", False),
-        "tolerance_m": status.get("tolerance_m"),  # the indicator's circle
+        "heading_converged": status["heading_converged"],
+        "convergence_progress": status["convergence_progress"],
+        "online": status["online"],
+        "tolerance_m": status["tolerance_m"],  # the indicator's circle
     }
 
 
-def state_message(device: str, t: float, state: str) -> dict[str, Any]:
+def state_message(device: str, t: float, state: IndicatorState) -> StateMsg:
     return {"type": "state", "device": device, "t": t, "state": state}
 
 
-def cycle_message(device: str, fb: dict[str, Any], index: int) -> dict[str, Any]:
+def cycle_message(device: str, fb: dict[str, Any], index: int) -> CycleMsg:
     return {
         "type": "cycle",
         "device": device,

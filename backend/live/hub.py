@@ -13,7 +13,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -66,7 +66,7 @@ class _Pending:
     timer: asyncio.TimerHandle | None = None
 
 
-def dumps(msg: dict[str, Any]) -> str:
+def dumps(msg: Mapping[str, Any]) -> str:
     return orjson.dumps(msg).decode("utf-8")
 
 
@@ -110,8 +110,8 @@ class Hub:
         self,
         device: str,
         session_id: int | None,
-        msg: dict[str, Any],
-        overlay_msg: dict[str, Any] | None,
+        msg: Mapping[str, Any],
+        overlay_msg: Mapping[str, Any] | None,
     ) -> None:
         text = otext = None
         for c in list(self.clients):
@@ -124,13 +124,17 @@ class Hub:
                 otext = otext or dumps(overlay_msg)
                 c.send(otext)
 
-    def event(self, device: str, session_id: int | None, msg: dict[str, Any]) -> None:
+    def event(self, device: str, session_id: int | None, msg: Mapping[str, Any]) -> None:
         """``state`` and ``cycle``: immediately, to therapists and the session's overlay
         (rows pending under the rate cap follow at their time)."""
         self._send(device, session_id, msg, msg)
 
     def status(
-        self, device: str, session_id: int | None, msg: dict[str, Any], overlay_msg: dict[str, Any]
+        self,
+        device: str,
+        session_id: int | None,
+        msg: Mapping[str, Any],
+        overlay_msg: Mapping[str, Any],
     ) -> None:
         self._send(device, session_id, msg, overlay_msg)
 

@@ -51,6 +51,7 @@ from backend.live.worker import (
     session_summary,
 )
 from backend.live.zenoh_io import RawSample, ZenohIO
+from backend.schemas.live import OverlayStatusMsg, StatusMsg
 from backend.settings import Settings
 from estimators.params import PipelineParams
 from estimators.pipeline import Pipeline
@@ -313,7 +314,7 @@ class LiveManager:
 
     # ------------------------------------------------------------------ status
 
-    def status(self, name: str) -> tuple[dict[str, Any], dict[str, Any], int | None]:
+    def status(self, name: str) -> tuple[StatusMsg, OverlayStatusMsg, int | None]:
         """(therapist status, overlay status, session id) of one device."""
         st = self.stats[name]
         w = self.workers.get(name)

@@ -20,6 +20,7 @@ from backend.db.audit import audit
 from backend.deps import State
 from backend.live.hub import Client, dumps
 from backend.live.manager import LiveManager
+from backend.schemas.live import HelloMsg
 from protocol import keys
 
 router = APIRouter(tags=["live"])
@@ -103,11 +104,11 @@ async def live_feed(
     client = manager.hub.connect(devices=names)
     state.sockets.add(therapist.id, login_id, client.revoke)
     try:
-        client.send(
-            dumps(
-                {"type": "hello", "devices": names if names is not None else manager.device_names()}
-            )
-        )
+        hello: HelloMsg = {
+            "type": "hello",
+            "devices": names if names is not None else manager.device_names(),
+        }
+        client.send(dumps(hello))
         manager.send_initial(client)
         await _pump(websocket, client, lambda: login_still_valid(state, therapist.id, login_id))
     finally:

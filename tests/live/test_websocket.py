@@ -13,6 +13,7 @@ from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
 from backend.live.feed import DISPLAY_EXTRA, OVERLAY_COLUMNS
+from backend.schemas import live as messages
 from simulator import SimConfig, simulate
 from simulator.publish import play, prepare
 from tests.live.conftest import Service, wait_for
@@ -131,6 +132,11 @@ def test_live_and_overlay_feeds(service: Service) -> None:
     time.sleep(0.3)
     everything.close()
     only_other.close()
+
+    # every message is one of the models (backend/schemas/live.py): no key more, none missing
+    for listener, model in ((everything, messages.LIVE), (overlay, messages.OVERLAY)):
+        for _, m in listener.messages:
+            model.validate_python(m, strict=True)
 
     # therapist: hello first, then status / estimate / state / cycle
     first = everything.messages[0][1]

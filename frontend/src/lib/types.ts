@@ -1,5 +1,7 @@
 // Types of the REST API (backend/schemas) and of the live WebSocket protocol.
 
+import type * as M from "./live-messages";
+
 export type Side = "left" | "right";
 export type Norm = "horizontal" | "3d";
 export type IndicatorState = "ok" | "outside" | "warning";
@@ -52,18 +54,8 @@ export interface Patient extends PatientFields {
   params: Partial<Params> & Record<string, unknown>;
 }
 
-export interface Quality {
-  rejected?: Record<string, number>;
-  seq_lost?: Record<string, number>;
-  robot_gaps?: number;
-  imu_resets?: number;
-  imu_bridged_gaps?: number;
-  robot_bridged_gaps?: number;
-  heading_resets?: number;
-  rows_without_imu?: number;
-  gaps?: unknown[] | number;
-  [key: string]: unknown;
-}
+// the pipeline's data-quality counters (live statuses, reports, device stats)
+export type Quality = Partial<M.PipelineQuality>;
 
 export interface Device {
   name: string;
@@ -236,75 +228,21 @@ export function unwrapReport(x: ReportOut | Report): Report {
 }
 
 // ---- WebSocket /api/ws/live and /api/ws/overlay --------------------------------------------
+// The messages are defined once, in backend/schemas/live.py; live-messages.ts is generated
+// from their JSON Schema at build time (npm run types). One client reads either feed, so
+// its view of a status or of rows has the overlay's fields and, optionally, the therapists'.
 
+export type { CycleMsg, HelloMsg, StateMsg } from "./live-messages";
 export type Num = number | null;
-
-export interface EstimateRows {
-  t: number[];
-  elbow_x?: Num[];
-  elbow_y?: Num[];
-  elbow_z?: Num[];
-  shoulder_x?: Num[];
-  shoulder_y?: Num[];
-  shoulder_z?: Num[];
-  elbow_angle_deg?: Num[];
-  heading_offset_deg?: Num[];
-  heading_converged?: (0 | 1 | null)[];
-  shoulder_displacement_m?: Num[];
-  state?: (IndicatorState | null)[];
-  upper_arm_elevation_deg?: Num[];
-  upper_arm_azimuth_deg?: Num[];
-  heading_confidence?: Num[];
-  nominal_x?: Num[];
-  nominal_y?: Num[];
-  nominal_z?: Num[];
-  wrist_x?: Num[];
-  wrist_y?: Num[];
-  wrist_z?: Num[];
-  dx?: Num[];
-  dy?: Num[];
-}
-
-export interface StatusMsg {
-  type: "status";
-  device: string;
-  online: boolean;
-  session_id: number | null;
-  patient: string | null;
-  heading_converged: boolean;
-  convergence_progress: number;
-  heading_confidence?: number;
-  heading_std_deg?: number | null;
-  upper_arm_length_m?: number;
-  quality?: Quality;
-  rates_hz?: { imu?: number; robot?: number };
-  tolerance_m?: number;
-  max_outside_fraction?: number;
-}
-
-export interface HelloMsg {
-  type: "hello";
-  devices?: string[];
-}
+export type StatusMsg = M.OverlayStatusMsg & Partial<M.StatusMsg>;
+export type EstimateRows = Pick<M.LiveRows, "t"> & Partial<M.LiveRows & M.OverlayRows>;
 export interface EstimateMsg {
   type: "estimate";
-  device?: string;
+  device: string;
   rows: EstimateRows;
 }
-export interface StateMsg {
-  type: "state";
-  device?: string;
-  t: number;
-  state: IndicatorState;
-}
-export interface CycleMsg {
-  type: "cycle";
-  device?: string;
-  start: number;
-  end: number;
-  outside_fraction: number;
-  compensatory: boolean;
-  index?: number;
-}
+export type LiveMsg = M.HelloMsg | StatusMsg | EstimateMsg | M.StateMsg | M.CycleMsg;
 
-export type LiveMsg = HelloMsg | StatusMsg | EstimateMsg | StateMsg | CycleMsg;
+// each feed's messages are one of the client's
+type Accepts<T extends LiveMsg> = T;
+export type FeedMsg = Accepts<M.LiveMsg> | Accepts<M.OverlayMsg>;
