@@ -107,6 +107,17 @@ def write_joints(rows: tracker.Rows, path: Path) -> None:
             fh.write("\n")
 
 
+def read_joints(path: str | Path) -> dict[str, np.ndarray]:
+    """joints.csv's columns by name (float64, NaN where a cell is empty)."""
+    with open(path, encoding="utf-8") as fh:
+        header = fh.readline().strip().split(",")
+        lines = [ln.rstrip("\n").split(",") for ln in fh if ln.strip()]
+    data = np.array(
+        [[float(v) if v else math.nan for v in ln] for ln in lines], dtype=np.float64
+    ).reshape(-1, len(header))
+    return {name: data[:, i].copy() for i, name in enumerate(header)}
+
+
 def rom(rows: tracker.Rows) -> dict[str, dict[str, float | None]]:
     """Range of motion per joint in anatomical terms: min, max, p5, p95 (deg), over the rows
     whose angle is available and whose flags do not mark the start's rest window."""
