@@ -556,3 +556,19 @@ def test_wearable_mcap_holds_joints_and_movements(wearable: Analysed, tmp_path: 
         assert schema is not None
         jsonschema.validate(json.loads(message.data), json.loads(schema.data))
     assert {g[0] for g in got} >= {"rehab/wear01/imu/upperarm", "rehab/wear01/imu/forearm"}
+
+
+def test_wearable_session_summary_feeds_the_history(wearable: Analysed) -> None:
+    """The sessions table's summary of a wearable report: the same ISB and elbow keys as a
+    robot session's, so the patient's trends show both modes side by side."""
+    from backend.live.worker import session_summary
+
+    s = session_summary(wearable.report)
+    rom = s["anatomical_rom_deg"]
+    assert (
+        rom["shoulder_elevation_deg"]
+        == (wearable.report["anatomical_rom"]["session"]["shoulder_elevation_deg"])
+    )
+    assert rom["elbow_flexion_deg"]["range"] > 0
+    assert s["movement_quality_median"]["sparc"] is not None
+    assert s["movements"] == len(wearable.report["movements"])
