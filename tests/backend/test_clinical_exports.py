@@ -572,3 +572,33 @@ def test_wearable_session_summary_feeds_the_history(wearable: Analysed) -> None:
     assert rom["elbow_flexion_deg"]["range"] > 0
     assert s["movement_quality_median"]["sparc"] is not None
     assert s["movements"] == len(wearable.report["movements"])
+
+
+MCAP_CHECK = Path(__file__).resolve().parents[2] / "tools" / "mcap-check"
+
+
+def test_mcap_opens_with_foxgloves_reader(analysed: Analysed, tmp_path: Path) -> None:
+    """@mcap/core (Foxglove's MCAP library) reads every message back, indexed and
+    streamed, CRCs checked, in log-time order, each one JSON with a jsonschema schema."""
+    node = shutil.which("node")
+    if node is None or not (MCAP_CHECK / "node_modules" / "@mcap" / "core").is_dir():
+        pytest.skip("@mcap/core not installed: ./run test installs it (tools/mcap-check)")
+    path = tmp_path / "s.mcap"
+    est = read_estimates(analysed.out / "estimates.csv")
+    n = mcap_file.write(path, analysed.recording, analysed.report, est, META)
+    out = subprocess.run(
+        [node, str(MCAP_CHECK / "check.mjs"), str(path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    ).stdout
+    got = json.loads(out)
+    assert got["messages"] == got["streamed"] == got["statistics"] == n
+    assert got["ordered"]
+    mine = _read_mcap(path.read_bytes())
+    topics: dict[str, int] = {}
+    for topic, *_ in mine:
+        topics[topic] = topics.get(topic, 0) + 1
+    assert got["topics"] == topics
+    assert set(got["schemas"]) == {s for _, s, *_ in mine}
