@@ -215,7 +215,8 @@ WEARABLE_FRAME_NOTE = (
 )
 WEARABLE_QUALITY_NOTE = (
     "From the wrist position of the wearable model (forearm IMU and the DH chain, in S), not "
-    "from a measured end effector, per movement. " + QUALITY_NOTE.split(". ", 1)[1]
+    "from a measured end effector, per movement; path_xy seen from above as (right, forward). "
+    + QUALITY_NOTE.split(". ", 1)[1]
 )
 
 
@@ -294,6 +295,10 @@ def wearable_sections(
     for name in WEARABLE_ANGLES:
         angles.setdefault(name, col(name))
     wrist = np.stack([col("wrist_x"), col("wrist_y"), col("wrist_z")], axis=1)
+    # for the quality section the path turned into the robot frame's axes (x right, y forward,
+    # z up; S has x forward, y left), so path_xy is seen from above the same way in both
+    # modes; the measures do not depend on the axes
+    wrist_rf = np.stack([-wrist[:, 1], wrist[:, 0], wrist[:, 2]], axis=1)
     mask = np.ones(n, dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
     if movements is None:
         movements = wearable_movements(t[mask], wrist[mask], event_times)
@@ -305,7 +310,7 @@ def wearable_sections(
         "side": side,
         **rom_section(t, angles, moves, mask, cache),
     }
-    quality = quality_section(t, wrist, moves, cache=cache)
+    quality = quality_section(t, wrist_rf, moves, cache=cache)
     quality["source"] = "wrist (wearable model)"
     quality["note"] = WEARABLE_QUALITY_NOTE
     elbow = rom["session"].get(ELBOW, {})

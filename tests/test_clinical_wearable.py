@@ -77,6 +77,10 @@ def test_wearable_sections_rom_per_session_and_movement() -> None:
     quality = sec["movement_quality"]
     assert quality["source"] == "wrist (wearable model)" and len(quality["cycles"]) == 8
     assert all(c["compensatory"] is None for c in quality["cycles"])
+    # seen from above as (right, forward) like the robot mode's: S's y points left
+    xy = np.array(quality["cycles"][0]["path_xy"])
+    assert np.allclose(xy[:, 0], 0.05) and xy[:, 1].min() == pytest.approx(0.15, abs=0.01)
+    assert xy[:, 1].max() == pytest.approx(0.45, abs=0.01)
     med = quality["session_median"]
     assert med["path_length_m"] == pytest.approx(0.60, rel=0.01)  # 0.30 out and back
     assert med["straightness_ratio"] == pytest.approx(1.0, abs=0.01)

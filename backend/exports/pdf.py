@@ -59,12 +59,6 @@ def _colour(c: Mapping[str, Any]) -> str:
     return MOVE_COLOUR if comp is None else COMP_COLOUR if comp else OK_COLOUR
 
 
-def _from_above(report: Mapping[str, Any], x: float, y: float) -> tuple[float, float]:
-    """A path point (m) as (right, forward) in cm: the robot frame's x, y; the wearable
-    shoulder frame S has x forward and y to the left."""
-    return (-y * 100, x * 100) if _wearable(report) else (x * 100, y * 100)
-
-
 def _fmt(v: Any, digits: int = 1, scale: float = 1.0) -> str:
     if v is None or (isinstance(v, float) and not math.isfinite(v)):
         return "–"
@@ -88,7 +82,7 @@ def _plots(report: Mapping[str, Any], max_outside: float) -> bytes:
     paths = [c for c in quality if len(c.get("path_xy") or []) > 1]
     ax.add_collection(
         LineCollection(
-            [[_from_above(report, x, y) for x, y in c["path_xy"]] for c in paths],
+            [[(x * 100, y * 100) for x, y in c["path_xy"]] for c in paths],  # right, forward
             colors=[_colour(c) for c in paths],
             linewidths=0.8,
         )
