@@ -1,17 +1,21 @@
 """The patient page's two-session comparison with two real sessions: two simulated devices
 stream over Zenoh to ``rehab serve`` (see conftest), one session each for one patient, one
 with compensation and one without; the figures shown side by side are checked against the
-two sessions' report.json; a screenshot is kept."""
+two sessions' report.json; a screenshot is kept. Then a wearable session's report page."""
 
 from __future__ import annotations
 
+import json
 import re
+import shutil
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
 
+from backend.cli import main
 from tests.ui.conftest import ConsoleLog, Service, SimDevice, shot
 
 pytest.importorskip("playwright.sync_api", reason="playwright not installed (dev extra)")
@@ -171,4 +175,62 @@ def test_two_sessions_side_by_side(
     swapped = shown()
     assert all(swapped[k] == (v[1], v[0]) for k, v in got.items())
     assert re.match(r"^\d+$", swapped["Cycles"][0])
+    assert not console.errors, console.errors
+
+
+def test_a_wearable_sessions_report_page(
+    page: Page, service: Service, two_sessions: dict[str, Any], tmp_path: Path
+) -> None:
+    """A wearable session's report (contract §8, what ``rehab analyze`` writes for it) on
+    the report page: its key figures, the ISB and the model's angles, the movements' quality
+    and wrist paths without verdicts, and no robot-only sections."""
+    sim, out = tmp_path / "sim", tmp_path / "out"
+    args = ["--move", "reaching", "--duration", "45", "--seed", "3", "--ideal"]
+    assert main(["simulate", "--mode", "wearable", *args, "--out", str(sim)]) == 0
+    rec = sim / "recording.jsonl.gz"
+    assert main(["analyze", str(rec), "--params", str(sim / "params.json"), "--out", str(out)]) == 0
+    report = json.loads((out / "report.json").read_text())
+    n_moves = len(report["movements"])
+    assert n_moves > 0
+    api = service.api()
+    try:
+        r = api.post(
+            "/api/sessions", json={"patient_id": two_sessions["patient_id"], "device": "cmp01"}
+        )
+        assert r.status_code == 201, r.text
+        sid = r.json()["id"]
+        assert api.post(f"/api/sessions/{sid}/stop").status_code == 200
+    finally:
+        api.close()
+    # what the live wearable side leaves for a finished session: its recording and outputs
+    dest = service.data_dir / "recordings"
+    shutil.copy(rec, dest / f"{sid}.jsonl.gz")
+    shutil.rmtree(dest / str(sid), ignore_errors=True)
+    shutil.copytree(out, dest / str(sid))
+
+    console = ConsoleLog()
+    console.watch(page)
+    page.goto(f"/sessions/{sid}")
+    figures = page.locator("[aria-label=Summary][data-mode=wearable] .figure")
+    expect(figures).to_have_count(3)
+    expect(figures.nth(0)).to_contain_text("Shoulder elevation")
+    rng = report["key_figures"][0]["value"]
+    expect(figures.nth(0)).to_contain_text(f"{rng:.0f}°")
+    rom = page.locator("section[aria-labelledby=rom-title]")
+    expect(rom.locator("[data-table=rom] tbody tr")).to_have_count(8)
+    expect(rom.locator("[data-table=rom]")).to_contain_text("Shoulder flexion (model)")
+    expect(rom.locator("[data-note=frame]")).to_contain_text("shoulder frame S")
+    rom.locator("summary").click()
+    expect(rom.locator("[data-table=rom-cycles] tbody tr")).to_have_count(n_moves)
+    mq = page.locator("section[aria-labelledby=mq-title]")
+    expect(mq.locator("[data-table=movement-quality] tbody tr")).to_have_count(n_moves + 1)
+    expect(mq.locator("[data-plot=wrist-paths] polyline[data-verdict=none]")).to_have_count(n_moves)
+    expect(mq).to_contain_text("no verdict")
+    expect(page.locator("section[aria-labelledby=cycles-title]")).to_have_count(0)
+    expect(page.locator("section[aria-labelledby=plots-title]")).to_have_count(0)
+    expect(page.locator("[data-export]")).to_have_count(5)  # no robot CSVs
+    shot(page, "report-wearable", full_page=True)
+    with page.expect_download() as dl:
+        page.locator("[data-export=pdf]").click()
+    assert Path(dl.value.path()).read_bytes().startswith(b"%PDF")
     assert not console.errors, console.errors
