@@ -602,3 +602,20 @@ def test_mcap_opens_with_foxgloves_reader(analysed: Analysed, tmp_path: Path) ->
         topics[topic] = topics.get(topic, 0) + 1
     assert got["topics"] == topics
     assert set(got["schemas"]) == {s for _, s, *_ in mine}
+
+
+def test_a_wearable_sessions_outputs_are_regenerated_as_wearable(
+    wearable: Analysed, tmp_path: Path
+) -> None:
+    """A wearable session the service did not stop (no report.json): its outputs are made
+    again by the wearable analysis, not the robot pipeline."""
+    from backend.live import files
+
+    rec = tmp_path / "recordings" / "5.jsonl.gz"
+    rec.parent.mkdir()
+    shutil.copy(wearable.recording, rec)
+    params = json.loads((wearable.recording.parent / "params.json").read_text())
+    report = files.regenerate(rec, params, "wear01")
+    assert report["mode"] == "wearable"
+    assert report["anatomical_rom"]["session"] == wearable.report["anatomical_rom"]["session"]
+    assert (files.outputs_dir(rec) / "joints.csv").is_file()
