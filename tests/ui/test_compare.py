@@ -178,6 +178,26 @@ def test_two_sessions_side_by_side(
     assert not console.errors, console.errors
 
 
+def test_a_robot_sessions_report_page_still_loads_its_cycles_and_csvs(
+    page: Page, two_sessions: dict[str, Any]
+) -> None:
+    """The report page asks for the cycles and CSVs once it knows the session is a robot
+    one: they are all there."""
+    console = ConsoleLog()
+    console.watch(page)
+    older = two_sessions["ids"][0]
+    rep = two_sessions["reports"][older]
+    page.goto(f"/sessions/{older}")
+    n = rep["summary"]["cycles"]
+    expect(page.get_by_label("Summary")).to_contain_text(f"of {n}")
+    cycles = page.get_by_role("region", name="Cycles with their verdicts")
+    expect(cycles.locator("tbody tr")).to_have_count(n)
+    expect(page.locator("[data-plot=report-displacement] canvas")).to_be_visible(timeout=20_000)
+    expect(page.locator("[data-plot=report-arm] canvas")).to_be_visible(timeout=20_000)
+    expect(page.locator("[data-export]")).to_have_count(7)
+    assert not console.errors, console.errors
+
+
 def test_a_wearable_sessions_report_page(
     page: Page, service: Service, two_sessions: dict[str, Any], tmp_path: Path
 ) -> None:
