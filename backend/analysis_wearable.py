@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from backend import clinical
 from estimators.wearable import tracker
 from estimators.wearable.params import WearableParams, WearableParamsError
 from protocol import keys, recording, wire
@@ -47,6 +48,7 @@ def analyze(
     rejected: Counter[str] = Counter()
     chosen = device
     n_lines = 0
+    cycle_starts: list[float] = []  # contract cycle_start events: the movements, if any
     for key, payload in recording.read(path):
         n_lines += 1
         if key is None:
@@ -72,6 +74,9 @@ def analyze(
             rows, state = tracker.feed(params, state, kind, msg.t, msg.gyr, msg.acc)
         elif isinstance(msg, wire.CameraMessage):
             rows, state = tracker.feed(params, state, "camera", msg.t, msg.elbow, msg.wrist)
+        elif isinstance(msg, wire.EventMessage) and msg.type == "cycle_start":
+            cycle_starts.append(msg.t)
+            continue
         else:
             rejected[f"ignored_{parsed.kind}"] += 1
             continue
@@ -82,7 +87,7 @@ def analyze(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     write_joints(rows, out / JOINTS_NAME)
-    report = make_report(rows, state, rejected, chosen, params, n_lines)
+    report = make_report(rows, state, rejected, chosen, params, n_lines, cycle_starts)
     (out / REPORT_NAME).write_text(json.dumps(report, indent=2, allow_nan=False) + "\n")
     return report
 
@@ -100,6 +105,17 @@ def write_joints(rows: tracker.Rows, path: Path) -> None:
         for i in range(len(cols[0])):
             fh.write(",".join(_cell(float(c[i]), d) for c, d in zip(cols, digits, strict=True)))
             fh.write("\n")
+
+
+def read_joints(path: str | Path) -> dict[str, np.ndarray]:
+    """joints.csv's columns by name (float64, NaN where a cell is empty)."""
+    with open(path, encoding="utf-8") as fh:
+        header = fh.readline().strip().split(",")
+        lines = [ln.rstrip("\n").split(",") for ln in fh if ln.strip()]
+    data = np.array(
+        [[float(v) if v else math.nan for v in ln] for ln in lines], dtype=np.float64
+    ).reshape(-1, len(header))
+    return {name: data[:, i].copy() for i, name in enumerate(header)}
 
 
 def rom(rows: tracker.Rows) -> dict[str, dict[str, float | None]]:
@@ -130,8 +146,16 @@ def make_report(
     device: str | None,
     params: WearableParams,
     n_lines: int,
+    cycle_starts: list[float] | None = None,
 ) -> dict[str, Any]:
+    """report.json of a wearable session: the §8 ROM (``rom``), confidence, data quality,
+    and the clinical sections of :func:`backend.clinical.wearable_sections` (anatomical ROM
+    per session and per movement, movement quality of the wrist path, key figures)."""
     flags = rows["flags"].astype(np.int64)
+    usable = (flags & tracker.INITIALISING) == 0
+    clin = clinical.wearable_sections(
+        rows["t"], rows, usable, event_times=cycle_starts or (), side=params.side
+    )
     final_std = {
         c: (round(float(rows[c][-1]), 3) if len(rows[c]) and math.isfinite(rows[c][-1]) else None)
         for c in tracker.STD_COLUMNS
@@ -145,6 +169,7 @@ def make_report(
             "lines": n_lines,
             "start": float(rows["t"][0]) if len(rows["t"]) else None,
             "end": float(rows["t"][-1]) if len(rows["t"]) else None,
+            "movements": len(clin["movements"]),
         },
         "rom": rom(rows),
         "confidence_at_end_deg": final_std,
@@ -161,6 +186,7 @@ def make_report(
             "upper_arm_length_m": params.upper_arm_length_m,
             "forearm_length_m": params.forearm_length_m,
         },
+        **clin,
     }
 
 

@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 
 from estimators import anatomy
 from estimators import movement_quality as mq
+from estimators.cycles import CycleParams, CycleSegmenter, Mode
 
 # the estimate rows' columns the sections need beyond the analysis' own statistics
 COLUMNS = ("q_ra", "wrist")
@@ -195,6 +196,140 @@ def sections(
         "anatomical_rom": rom,
         "movement_quality": quality,
         "key_figures": key_figures(cycles, rom, quality),
+    }
+
+
+WEARABLE_ANGLES = (
+    "shoulder_flexion_deg",
+    "shoulder_abduction_deg",
+    "shoulder_rotation_deg",
+    ELBOW,
+    "forearm_pronation_deg",
+)  # contract §8's joint angles
+WEARABLE_FRAME_NOTE = (
+    "Wearable mode (two IMUs, DH model, contract §8): shoulder angles are relative to the "
+    "shoulder frame S, fixed at the start's rest pose (no trunk sensor): trunk lean or "
+    "rotation after the start appears as shoulder motion. The ISB angles are computed from the "
+    "model's joint angles, so they compare with the robot mode's; the model's own angles "
+    "(flexion, abduction, rotation, pronation) are listed beside them."
+)
+WEARABLE_QUALITY_NOTE = (
+    "From the wrist position of the wearable model (forearm IMU and the DH chain, in S), not "
+    "from a measured end effector, per movement; path_xy seen from above as (right, forward). "
+    + QUALITY_NOTE.split(". ", 1)[1]
+)
+
+
+def wearable_movements(
+    t: NDArray[np.float64],
+    wrist: NDArray[np.float64],
+    event_times: Sequence[float] = (),
+    params: CycleParams | None = None,
+) -> list[dict[str, Any]]:
+    """Movements (``{"start", "end"}``, s) of a wearable session from its wrist path
+    (``wrist`` (N, 3) m in S, NaN rows skipped; ``t`` (N,) s increasing): the contract's
+    ``cycle_start`` events when there are any, else :class:`estimators.cycles.CycleSegmenter`
+    on the path seen from above (S's x and y: horizontal, like the robot frame's) with both the
+    closed-path and the reaching detectors, keeping the one that finds more movements (the
+    wearable mode has no game telling the task). ``params``: the segmenter's parameters
+    (``mode`` is overridden)."""
+    base = params if params is not None else CycleParams()
+    ok = np.all(np.isfinite(wrist), axis=1) if len(wrist) else np.zeros(0, dtype=bool)
+    tt, ww = np.asarray(t, dtype=np.float64)[ok], np.asarray(wrist, dtype=np.float64)[ok]
+    modes: tuple[Mode, ...] = ("events",) if len(event_times) else ("path", "reach")
+    best: list[dict[str, Any]] = []
+    for mode in modes:
+        seg = CycleSegmenter(dataclasses.replace(base, mode=mode))
+        for te in sorted(event_times):
+            seg.add_event(float(te))
+        found = seg.update(tt, ww) + seg.update(np.zeros(0), np.zeros((0, 3)))
+        got = [
+            {"start": float(b.cycle_start), "end": float(b)}
+            for b in found
+            if b.cycle_start is not None
+        ]
+        if len(got) > len(best):
+            best = got
+    return best
+
+
+def wearable_sections(
+    t: NDArray[np.float64],
+    joints: Mapping[str, NDArray[np.float64]],
+    valid: NDArray[np.bool_] | None = None,
+    movements: Sequence[Mapping[str, Any]] | None = None,
+    event_times: Sequence[float] = (),
+    side: anatomy.Side = "right",
+    cache: Cache | None = None,
+) -> dict[str, Any]:
+    """The clinical sections of a wearable session (contract §8), the same keys as
+    :func:`sections`' plus ``movements``:
+
+    - ``t`` (N,) s increasing, one row per upper-arm IMU sample;
+    - ``joints``: joints.csv's columns by name (N,) each: the five joint angles (°) and
+      ``wrist_x``/``wrist_y``/``wrist_z`` (m, in S); NaN where not available;
+    - ``valid`` (N,) bool: the rows to use (e.g. not inside the start's rest window); all if
+      None;
+    - ``movements``: ``{"start", "end"}`` (s) per movement, or None to find them with
+      :func:`wearable_movements` (from ``event_times``, the contract's ``cycle_start``
+      events, or the wrist path);
+    - ``side``: the tracked arm (the §8 angles already mean the same motions on either side);
+    - ``cache``: as for :func:`sections` (a live caller asking again mid-session).
+
+    ROM per session and per movement of the ISB shoulder angles (the same names and
+    convention as the robot mode's, so a patient's history shows both modes side by side),
+    the elbow flexion (the same angle as contract §3's) and the model's own angles; movement
+    quality of the model's wrist path per movement; the key figures."""
+    t = np.asarray(t, dtype=np.float64).reshape(-1)
+    n = len(t)
+
+    def col(name: str) -> NDArray[np.float64]:
+        a = joints.get(name)
+        return np.full(n, np.nan) if a is None else np.asarray(a, dtype=np.float64).reshape(-1)
+
+    ap = anatomy.AnatomyParams(side=side)
+    angles = anatomy.wearable_isb_angles(
+        col("shoulder_flexion_deg"), col("shoulder_abduction_deg"), col("shoulder_rotation_deg"), ap
+    )
+    angles[ELBOW] = col(ELBOW)
+    for name in WEARABLE_ANGLES:
+        angles.setdefault(name, col(name))
+    wrist = np.stack([col("wrist_x"), col("wrist_y"), col("wrist_z")], axis=1)
+    # for the quality section the path turned into the robot frame's axes (x right, y forward,
+    # z up; S has x forward, y left), so path_xy is seen from above the same way in both
+    # modes; the measures do not depend on the axes
+    wrist_rf = np.stack([-wrist[:, 1], wrist[:, 0], wrist[:, 2]], axis=1)
+    mask = np.ones(n, dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
+    if movements is None:
+        movements = wearable_movements(t[mask], wrist[mask], event_times)
+    moves = [{"start": float(m["start"]), "end": float(m["end"])} for m in movements]
+    rom = {
+        "reference_frame": "shoulder frame S (wearable)",
+        "note": WEARABLE_FRAME_NOTE,
+        "convention": ISB_NOTE.format(min_elev=ap.min_elevation_deg),
+        "side": side,
+        **rom_section(t, angles, moves, mask, cache),
+    }
+    quality = quality_section(t, wrist_rf, moves, cache=cache)
+    quality["source"] = "wrist (wearable model)"
+    quality["note"] = WEARABLE_QUALITY_NOTE
+    elbow = rom["session"].get(ELBOW, {})
+    figures = [f for f in key_figures([], rom, quality) if f["key"] != "compensatory_cycles_pct"]
+    figures.insert(
+        1,
+        {
+            "key": "elbow_flexion_range_deg",
+            "label": "Elbow flexion, active range (p5-p95)",
+            "value": elbow.get("range"),
+            "unit": "deg",
+            "detail": _span(elbow),
+        },
+    )
+    return {
+        "movements": moves,
+        "anatomical_rom": rom,
+        "movement_quality": quality,
+        "key_figures": figures,
     }
 
 

@@ -164,3 +164,39 @@ def rom_table(
         name: rom_stats(np.asarray(a)[mask] if mask is not None else np.asarray(a))
         for name, a in angles.items()
     }
+
+
+# columns: the ISB thorax / humerus axes (X anterior, Y superior, Z right) in contract §8's
+# shoulder frame S (x forward, y left, z up) and, in the zero pose, in the upper-arm frame U
+_ISB_IN_S = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]]).T
+
+
+def _rot(axis: int, a: Array) -> Array:
+    """Right-handed rotations (N, 3, 3) about x (0), y (1) or z (2) by ``a`` (N,) rad."""
+    c, s = np.cos(a), np.sin(a)
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    m = np.zeros((len(a), 3, 3))
+    m[:, axis, axis] = 1.0
+    m[:, i, i] = c
+    m[:, j, j] = c
+    m[:, i, j] = -s
+    m[:, j, i] = s
+    return m
+
+
+def wearable_isb_angles(
+    flexion_deg: Array,
+    abduction_deg: Array,
+    rotation_deg: Array,
+    params: AnatomyParams = AnatomyParams(),
+) -> dict[str, Array]:
+    """ISB shoulder angles (°, (N,) each) from the wearable mode's joint angles (contract §8,
+    °, (N,) each): ``R_SU = Ry(−θ0) · Rx(−θ1) · Rz(θ2)`` with S standing in for the thorax
+    and U for the humerus (both parallel in the zero pose, so ``R_TH = C^T R_SU C`` with
+    ``C`` the ISB axes in S). The §8 angles of a left arm are already those of the mirrored
+    (virtual right) arm, so ``params.side`` is not applied again. NaN in → NaN out."""
+    t0 = np.radians(np.asarray(flexion_deg, dtype=np.float64).reshape(-1))
+    t1 = np.radians(np.asarray(abduction_deg, dtype=np.float64).reshape(-1))
+    t2 = np.radians(np.asarray(rotation_deg, dtype=np.float64).reshape(-1))
+    r_su = _rot(1, -t0) @ _rot(0, -t1) @ _rot(2, t2)
+    return isb_angles(_ISB_IN_S.T @ r_su @ _ISB_IN_S, params)

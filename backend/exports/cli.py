@@ -61,11 +61,13 @@ def cmd_export(args: argparse.Namespace) -> int:
         done.append(args.fhir)
     if args.mcap:
         from backend.analysis import read_estimates
+        from backend.analysis_wearable import read_joints
         from backend.exports import mcap_file
 
-        est_path = out_dir / "estimates.csv"
+        est_path, joints_path = out_dir / "estimates.csv", out_dir / "joints.csv"
         estimates = read_estimates(est_path) if est_path.is_file() else None
-        n = mcap_file.write(Path(args.mcap), rec, report, estimates, meta)
+        joints = read_joints(joints_path) if joints_path.is_file() else None
+        n = mcap_file.write(Path(args.mcap), rec, report, estimates, meta, joints=joints)
         done.append(f"{args.mcap} ({n} messages)")
     print("rehab export: wrote " + ", ".join(done))
     return 0

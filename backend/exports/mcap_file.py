@@ -9,7 +9,14 @@ Topics:
   contract §7's columns, empty cells as null);
 - ``<prefix>/<device>/cycle``: one message per judged cycle, as the report has it, logged at
   its end; the movement quality of the cycle beside the verdict.
+- a wearable session (contract §8): ``<prefix>/<device>/joints``, one message per row of
+  ``joints.csv`` (the contract's live key for them), and ``<prefix>/<device>/movement``, one
+  per movement with its ROM's elevation and elbow ranges and its movement quality.
 
+What Foxglove needs, checked by the tests: ``json`` message encoding, ``jsonschema`` schema
+encoding, a JSON Schema per channel that each of its messages validates against, and an
+indexed file (chunk and message indexes, summary) so it reads the messages in log-time order
+although they are written source by source. Every channel's own log times never go back.
 Messages carry their source order in ``sequence`` (per file), so a reader can restore it.
 """
 
@@ -26,6 +33,7 @@ from mcap.writer import Writer
 
 from backend.analysis import CSV_HEADER
 from backend.exports import ExportMeta
+from estimators.wearable.tracker import COLUMNS as JOINT_COLUMNS
 from protocol import recording
 
 _NUM = {"type": "number"}
@@ -76,6 +84,21 @@ SCHEMAS: dict[str, dict[str, Any]] = {
             "outside_fraction": _NUM,
             "compensatory": {"type": ["boolean", "null"]},
         },
+    },
+    "rehab.Joints": {
+        "type": "object",
+        "properties": {k: {"type": ["number", "null"]} for k in JOINT_COLUMNS},
+        "required": ["t"],
+    },
+    "rehab.Movement": {
+        "type": "object",
+        "properties": {
+            "start": _NUM,
+            "end": _NUM,
+            "shoulder_elevation_range_deg": {"type": ["number", "null"]},
+            "elbow_flexion_range_deg": {"type": ["number", "null"]},
+        },
+        "required": ["start", "end"],
     },
 }
 
@@ -138,12 +161,15 @@ def write(
     estimates: Mapping[str, np.ndarray] | None,
     meta: ExportMeta,
     prefix: str = "rehab",
+    joints: Mapping[str, np.ndarray] | None = None,
 ) -> int:
     """Write the MCAP file; returns the number of messages. ``estimates``: the columns of
-    ``estimates.csv`` (:func:`backend.analysis.read_estimates`), or None to leave them out."""
+    ``estimates.csv`` (:func:`backend.analysis.read_estimates`), or None to leave them out;
+    ``joints``: a wearable session's ``joints.csv`` columns
+    (:func:`backend.analysis_wearable.read_joints`), or None."""
     if isinstance(out, Path):
         with out.open("wb") as fh:
-            return write(fh, recording_path, report, estimates, meta, prefix)
+            return write(fh, recording_path, report, estimates, meta, prefix, joints)
     o = _Out(out, meta)
     last_ns = 0
     for key, payload in recording.read(recording_path):
@@ -167,8 +193,37 @@ def write(
         mq = {k: v for k, v in quality.get((c["start"], c["end"]), {}).items() if k != "path_xy"}
         msg = {**c, **{k: v for k, v in mq.items() if k not in c}}
         o.add(f"{base}/cycle", "rehab.Cycle", _ns(c["end"]), json.dumps(msg).encode())
+    for row in _joint_rows(joints):
+        o.add(f"{base}/joints", "rehab.Joints", _ns(row["t"]), json.dumps(row).encode())
+    rom = {
+        (c["start"], c["end"]): c["angles"]
+        for c in report.get("anatomical_rom", {}).get("cycles", [])
+    }
+    for m in report.get("movements", []):
+        span = (m["start"], m["end"])
+        angles = rom.get(span, {})
+        msg = {
+            "start": m["start"],
+            "end": m["end"],
+            "shoulder_elevation_range_deg": angles.get("shoulder_elevation_deg", {}).get("range"),
+            "elbow_flexion_range_deg": angles.get("elbow_flexion_deg", {}).get("range"),
+            **{
+                k: v
+                for k, v in quality.get(span, {}).items()
+                if k not in ("path_xy", "start", "end", "compensatory")
+            },
+        }
+        o.add(f"{base}/movement", "rehab.Movement", _ns(m["end"]), json.dumps(msg).encode())
     o.w.finish()  # type: ignore[no-untyped-call]
     return o.seq
+
+
+def _joint_rows(joints: Mapping[str, np.ndarray] | None) -> Iterable[dict[str, Any]]:
+    if not joints or "t" not in joints:
+        return
+    names = [k for k in JOINT_COLUMNS if k in joints]
+    for values in zip(*(joints[k].tolist() for k in names), strict=True):
+        yield {k: (None if v != v else v) for k, v in zip(names, values, strict=True)}
 
 
 def _estimate_rows(est: Mapping[str, np.ndarray] | None) -> Iterable[dict[str, Any]]:

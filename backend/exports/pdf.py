@@ -36,12 +36,27 @@ from backend.exports.fhir import QUALITY_NAMES
 MAX_CYCLE_ROWS = 40
 OK_COLOUR = "#2e7d32"
 COMP_COLOUR = "#c62828"
+MOVE_COLOUR = "#1565c0"  # a wearable session's movements: no verdict
+ELBOW_COLOUR = "#ef6c00"
 _ANGLES = {
     "shoulder_plane_of_elevation_deg": "Shoulder plane of elevation",
     "shoulder_elevation_deg": "Shoulder elevation",
     "shoulder_axial_rotation_deg": "Shoulder axial rotation",
     "elbow_flexion_deg": "Elbow flexion",
+    "shoulder_flexion_deg": "Shoulder flexion (model)",
+    "shoulder_abduction_deg": "Shoulder abduction (model)",
+    "shoulder_rotation_deg": "Shoulder int. rotation (model)",
+    "forearm_pronation_deg": "Forearm pronation (model)",
 }
+
+
+def _wearable(report: Mapping[str, Any]) -> bool:
+    return report.get("mode") == "wearable"
+
+
+def _colour(c: Mapping[str, Any]) -> str:
+    comp = c.get("compensatory")
+    return MOVE_COLOUR if comp is None else COMP_COLOUR if comp else OK_COLOUR
 
 
 def _fmt(v: Any, digits: int = 1, scale: float = 1.0) -> str:
@@ -55,8 +70,10 @@ def _when(t: datetime | None) -> str:
 
 
 def _plots(report: Mapping[str, Any], max_outside: float) -> bytes:
-    cycles = report.get("cycles", [])
+    wearable = _wearable(report)
+    cycles = report.get("movements", []) if wearable else report.get("cycles", [])
     quality = report.get("movement_quality", {}).get("cycles", [])
+    unit = "movement" if wearable else "cycle"
     # a Figure without pyplot: no global state, safe in the service's worker threads
     fig = Figure(figsize=(7.4, 2.5), dpi=150)
     axes = fig.subplots(1, 3)
@@ -65,30 +82,55 @@ def _plots(report: Mapping[str, Any], max_outside: float) -> bytes:
     paths = [c for c in quality if len(c.get("path_xy") or []) > 1]
     ax.add_collection(
         LineCollection(
-            [[(x * 100, y * 100) for x, y in c["path_xy"]] for c in paths],
-            colors=[COMP_COLOUR if c.get("compensatory") else OK_COLOUR for c in paths],
+            [[(x * 100, y * 100) for x, y in c["path_xy"]] for c in paths],  # right, forward
+            colors=[_colour(c) for c in paths],
             linewidths=0.8,
         )
     )
     ax.autoscale_view()
     ax.set_title("Wrist path from above", fontsize=8)
-    ax.set_xlabel("x, right (cm)", fontsize=7)
-    ax.set_ylabel("y, forward (cm)", fontsize=7)
+    ax.set_xlabel("right (cm)", fontsize=7)
+    ax.set_ylabel("forward (cm)", fontsize=7)
     ax.set_aspect("equal", adjustable="datalim")
     n = range(1, len(cycles) + 1)
     ax = axes[1]
-    ax.vlines(  # bars as one line collection, as wide as the cycles allow
-        list(n),
-        0,
-        [100 * c["outside_fraction"] for c in cycles],
-        colors=[COMP_COLOUR if c["compensatory"] else OK_COLOUR for c in cycles],
-        linewidths=max(0.5, min(6.0, 250.0 / max(len(cycles), 1))),
-    )
-    ax.set_ylim(bottom=0)
-    ax.axhline(100 * max_outside, color="0.3", lw=0.8, ls="--")
-    ax.set_title("Time outside tolerance per cycle", fontsize=8)
-    ax.set_xlabel("cycle", fontsize=7)
-    ax.set_ylabel("% of the cycle", fontsize=7)
+    if wearable:  # no verdicts: the active range of the two key angles per movement
+        per = report.get("anatomical_rom", {}).get("cycles", [])
+        for name, colour, label in (
+            ("shoulder_elevation_deg", MOVE_COLOUR, "shoulder elevation"),
+            ("elbow_flexion_deg", ELBOW_COLOUR, "elbow flexion"),
+        ):
+            pts = [
+                (i, r)
+                for i, c in enumerate(per, start=1)
+                if (r := c["angles"].get(name, {}).get("range")) is not None
+            ]
+            ax.plot(
+                [i for i, _ in pts],
+                [r for _, r in pts],
+                "-o",
+                ms=2.5,
+                lw=0.8,
+                color=colour,
+                label=label,
+            )
+        ax.set_ylim(bottom=0)
+        ax.legend(fontsize=6, loc="lower right")
+        ax.set_title("Active range per movement", fontsize=8)
+        ax.set_ylabel("degrees (p5-p95)", fontsize=7)
+    else:
+        ax.vlines(  # bars as one line collection, as wide as the cycles allow
+            list(n),
+            0,
+            [100 * c["outside_fraction"] for c in cycles],
+            colors=[_colour(c) for c in cycles],
+            linewidths=max(0.5, min(6.0, 250.0 / max(len(cycles), 1))),
+        )
+        ax.set_ylim(bottom=0)
+        ax.axhline(100 * max_outside, color="0.3", lw=0.8, ls="--")
+        ax.set_title("Time outside tolerance per cycle", fontsize=8)
+        ax.set_ylabel("% of the cycle", fontsize=7)
+    ax.set_xlabel(unit, fontsize=7)
     ax = axes[2]
     sparc = [c.get("sparc") for c in quality]
     ax.plot(
@@ -99,8 +141,8 @@ def _plots(report: Mapping[str, Any], max_outside: float) -> bytes:
         lw=0.8,
         color="#1565c0",
     )
-    ax.set_title("Smoothness (SPARC) per cycle", fontsize=8)
-    ax.set_xlabel("cycle", fontsize=7)
+    ax.set_title(f"Smoothness (SPARC) per {unit}", fontsize=8)
+    ax.set_xlabel(unit, fontsize=7)
     for a in axes[1:]:
         a.xaxis.set_major_locator(MaxNLocator(integer=True))
     for a in axes:
@@ -147,7 +189,12 @@ def render(report: Mapping[str, Any], meta: ExportMeta) -> bytes:
     story.append(
         Paragraph(
             f"{_when(meta.started_at)}{duration} · device {meta.device} · therapist "
-            f"{meta.therapist or '–'} · {summary.get('cycles', 0)} cycles judged",
+            f"{meta.therapist or '–'} · "
+            + (
+                f"wearable mode, {summary.get('movements', 0)} movements"
+                if _wearable(report)
+                else f"{summary.get('cycles', 0)} cycles judged"
+            ),
             small,
         )
     )
@@ -185,13 +232,14 @@ def render(report: Mapping[str, Any], meta: ExportMeta) -> bytes:
     max_outside = float(report.get("params", {}).get("max_outside_fraction", 0.2))
     png = _plots(report, max_outside)
     story.append(Image(io.BytesIO(png), width=186 * mm, height=186 * mm * 2.5 / 7.4))
-    story.append(
-        Paragraph(
-            f"Green: cycle within tolerance; red: compensatory (shoulder outside tolerance for "
-            f"more than {100 * max_outside:.0f} % of the cycle, dashed line).",
-            small,
-        )
+    caption = (
+        "The wrist path of the wearable model (forearm IMU and the DH chain) per movement; "
+        "the wearable mode judges no compensation."
+        if _wearable(report)
+        else f"Green: cycle within tolerance; red: compensatory (shoulder outside tolerance "
+        f"for more than {100 * max_outside:.0f} % of the cycle, dashed line)."
     )
+    story.append(Paragraph(caption, small))
 
     rom = report.get("anatomical_rom", {})
     story.append(Paragraph("Range of motion (degrees)", h2))
@@ -206,7 +254,8 @@ def render(report: Mapping[str, Any], meta: ExportMeta) -> bytes:
         story.append(Paragraph(f"{rom['note']} {rom.get('convention', '')}", small))
 
     quality = report.get("movement_quality", {})
-    story.append(Paragraph("Movement quality (session medians over the cycles)", h2))
+    unit = "movements" if _wearable(report) else "cycles"
+    story.append(Paragraph(f"Movement quality (session medians over the {unit})", h2))
     med = quality.get("session_median", {})
     rows = [["Measure", "median", "unit"]]
     for k, (label, unit) in QUALITY_NAMES.items():
@@ -215,9 +264,12 @@ def render(report: Mapping[str, Any], meta: ExportMeta) -> bytes:
     if quality.get("note"):
         story.append(Paragraph(quality["note"], small))
 
-    story.append(Paragraph("Cycles", h2))
     q_by = {(c["start"], c["end"]): c for c in quality.get("cycles", [])}
     rom_by = {(c["start"], c["end"]): c["angles"] for c in rom.get("cycles", [])}
+    if _wearable(report):
+        story.extend(_movements(report, q_by, rom_by, small, h2))
+        return _build(story, title)
+    story.append(Paragraph("Cycles", h2))
     rows = [
         [
             "#",
@@ -274,7 +326,59 @@ def render(report: Mapping[str, Any], meta: ExportMeta) -> bytes:
         )
     if not cycles:
         story.append(Paragraph("No cycle was judged in this session.", small))
+    return _build(story, title)
 
+
+def _movements(
+    report: Mapping[str, Any],
+    q_by: Mapping[tuple[float, float], Mapping[str, Any]],
+    rom_by: Mapping[tuple[float, float], Mapping[str, Any]],
+    small: ParagraphStyle,
+    h2: ParagraphStyle,
+) -> list[Any]:
+    """A wearable session's movement table: ROM and quality per movement."""
+    out: list[Any] = [Paragraph("Movements", h2)]
+    rows: list[list[Any]] = [
+        [
+            "#",
+            "start (s)",
+            "duration (s)",
+            "elevation range (°)",
+            "elbow range (°)",
+            "path (m)",
+            "straightness",
+            "units",
+            "SPARC",
+        ]
+    ]
+    moves = report.get("movements", [])
+    for i, c in enumerate(moves[:MAX_CYCLE_ROWS], start=1):
+        key = (c["start"], c["end"])
+        q, a = q_by.get(key, {}), rom_by.get(key, {})
+        rows.append(
+            [
+                i,
+                _fmt(c["start"], 1),
+                _fmt(c["end"] - c["start"], 1),
+                _fmt(a.get("shoulder_elevation_deg", {}).get("range"), 0),
+                _fmt(a.get("elbow_flexion_deg", {}).get("range"), 0),
+                _fmt(q.get("path_length_m"), 2),
+                _fmt(q.get("straightness_ratio"), 2),
+                _fmt(q.get("movement_units"), 0),
+                _fmt(q.get("sparc"), 2),
+            ]
+        )
+    out.append(_table(rows, [w * mm for w in (8, 16, 18, 28, 24, 16, 20, 12, 16)], font=6.8))
+    if len(moves) > MAX_CYCLE_ROWS:
+        out.append(
+            Paragraph(f"… and {len(moves) - MAX_CYCLE_ROWS} more movements (report JSON).", small)
+        )
+    if not moves:
+        out.append(Paragraph("No movement was found in this session.", small))
+    return out
+
+
+def _build(story: list[Any], title: str) -> bytes:
     buf = io.BytesIO()
     doc = SimpleDocTemplate(
         buf,
@@ -285,7 +389,7 @@ def render(report: Mapping[str, Any], meta: ExportMeta) -> bytes:
         bottomMargin=10 * mm,
         title=title,
         author="rehab-tracking",
-        subject="Robot-assisted upper-limb rehabilitation session report",
+        subject="Upper-limb rehabilitation session report",
     )
     doc.build(story)
     return buf.getvalue()

@@ -174,7 +174,17 @@ class SessionFiles:
 
 
 def regenerate(recording_path: Path, params: dict[str, Any], device: str) -> dict[str, Any]:
-    """``rehab analyze`` of a session's recording into its directory; returns the report."""
+    """``rehab analyze`` of a session's recording into its directory; returns the report
+    (a wearable session's, contract §8, by its parameters' ``"mode"``)."""
+    if params.get("mode") == "wearable":
+        from backend import analysis_wearable
+
+        return analysis_wearable.analyze(
+            recording_path,
+            analysis_wearable.load_params(params),
+            outputs_dir(recording_path),
+            device,
+        )
     _, report = analyze(
         recording_path, PipelineParams.from_json(params), outputs_dir(recording_path), device=device
     )

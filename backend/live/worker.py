@@ -81,8 +81,9 @@ def session_summary(report: dict[str, Any]) -> dict[str, Any]:
     """What the sessions table keeps of a report (the report itself is a file)."""
     return {
         **report["summary"],
-        "heading_converged_t": report["heading"]["converged_t"],
-        "shoulder_displacement_m": report["shoulder_displacement_m"],
+        # .get: a wearable session's report (contract §8) has no heading nor shoulder
+        "heading_converged_t": report.get("heading", {}).get("converged_t"),
+        "shoulder_displacement_m": report.get("shoulder_displacement_m"),
         # range of motion, for the patient's history without reading every report
         "elbow_flexion_deg": report.get("elbow_flexion_deg"),
         "upper_arm_elevation_deg": report.get("upper_arm_elevation_deg"),

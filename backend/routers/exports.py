@@ -21,6 +21,7 @@ from fastapi.responses import FileResponse, Response
 from pydantic import BaseModel, ConfigDict
 
 from backend.analysis import read_estimates
+from backend.analysis_wearable import read_joints
 from backend.auth.guards import CurrentTherapist
 from backend.db.audit import audit
 from backend.db.errors import NotFound
@@ -57,8 +58,8 @@ class ReportCycle(_Open):
 
 class ReportSummary(_Open):
     rows: int
-    cycles: int
-    compensatory_cycles: int
+    cycles: int = 0  # a wearable session has no robot cycles (its movements instead)
+    compensatory_cycles: int = 0
     compensatory_share: float | None = None
     time_outside_share: float | None = None
 
@@ -419,11 +420,13 @@ async def session_mcap(
     path = await _complete(state, session)
     report, meta = await _clinical(state, session)
     est_path = files.outputs_dir(path) / "estimates.csv"
+    joints_path = files.outputs_dir(path) / "joints.csv"  # a wearable session (contract §8)
 
     def build() -> bytes:
         buf = io.BytesIO()
         estimates = read_estimates(est_path) if est_path.exists() else None
-        mcap_file.write(buf, path, report, estimates, meta, state.settings.key_prefix)
+        joints = read_joints(joints_path) if joints_path.exists() else None
+        mcap_file.write(buf, path, report, estimates, meta, state.settings.key_prefix, joints)
         return buf.getvalue()
 
     body = await asyncio.to_thread(build)

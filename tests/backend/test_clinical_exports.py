@@ -402,3 +402,220 @@ async def test_fhir_send_without_an_endpoint(
     state.settings.fhir_url = None
     r = await client.post("/api/sessions/1/fhir/send", headers=admin)
     assert r.status_code == 409 and "REHAB_FHIR_URL" in r.json()["detail"]
+
+
+# ---- standard codes (LOINC, SNOMED CT body sites, UCUM), Foxglove's needs of the MCAP file
+
+
+def test_fhir_uses_loinc_snomed_and_ucum_where_they_exist(analysed: Analysed) -> None:
+    b = Bundle.model_validate(fhir.bundle(analysed.report, META))
+    obs = {o.resource.code.coding[-1].code: o.resource for o in b.entry[2:]}
+    duration = obs["exercise_duration"]
+    loinc = duration.code.coding[0]
+    assert (loinc.system, loinc.code, loinc.display) == (
+        "http://loinc.org",
+        "55411-3",
+        "Exercise duration",
+    )
+    q = duration.valueQuantity
+    assert (q.system, q.code) == ("http://unitsofmeasure.org", "min")
+    cycles = analysed.report["cycles"]
+    assert float(q.value) == pytest.approx(sum(c["end"] - c["start"] for c in cycles) / 60)
+    cats = {c.coding[0].code for c in duration.category}
+    assert cats == {"activity", "PhysicalActivity"}  # HL7's, and the Physical Activity IG's
+    sites = {
+        "rom.shoulder_elevation_deg": "16982005",
+        "rom.shoulder_plane_of_elevation_deg": "16982005",
+        "rom.elbow_flexion_deg": "16953009",
+        "shoulder_elevation_range_deg": "16982005",
+    }
+    for code, snomed in sites.items():
+        site = obs[code].bodySite
+        assert (site.coding[0].system, site.coding[0].code) == ("http://snomed.info/sct", snomed)
+        assert site.text.startswith(analysed.report["anatomical_rom"]["side"])
+        assert obs[code].method.coding[0].code == "method.robot"
+    assert obs["sparc_median"].bodySite is None  # the hand path: no joint
+    # the project's code system for everything LOINC has not
+    assert all(o.code.coding[-1].system == fhir.CODE_SYSTEM for o in obs.values())
+    assert [c for o in obs.values() for c in o.code.coding if c.system == "http://loinc.org"] == [
+        loinc
+    ]
+
+
+def _validators() -> Any:
+    import jsonschema
+
+    return jsonschema
+
+
+def test_mcap_meets_what_foxglove_needs(analysed: Analysed) -> None:
+    """json messages, jsonschema schemas that are valid JSON Schemas and that every message
+    validates against, an indexed file read back in log-time order, and each channel's log
+    times in order."""
+    import io
+
+    from mcap.reader import make_reader
+
+    jsonschema = _validators()
+    buf = io.BytesIO()
+    est = read_estimates(analysed.out / "estimates.csv")
+    n = mcap_file.write(buf, analysed.recording, analysed.report, est, META)
+    reader = make_reader(io.BytesIO(buf.getvalue()))
+    summary = reader.get_summary()
+    assert summary is not None and summary.chunk_indexes  # indexed: seekable by time
+    assert summary.statistics is not None and summary.statistics.message_count == n
+    checkers: dict[int, Any] = {}
+    for sid, schema in summary.schemas.items():
+        assert schema.encoding == "jsonschema"
+        doc = json.loads(schema.data)
+        jsonschema.Draft202012Validator.check_schema(doc)
+        checkers[sid] = jsonschema.Draft202012Validator(doc)
+    times = []
+    for schema, channel, message in reader.iter_messages(log_time_order=True):
+        assert schema is not None and channel.message_encoding == "json"
+        checkers[schema.id].validate(json.loads(message.data))
+        times.append(message.log_time)
+    assert len(times) == n and times == sorted(times)
+    last: dict[str, int] = {}  # as written: no channel goes back in time
+    for _, channel, message in reader.iter_messages(log_time_order=False):
+        assert message.log_time >= last.get(channel.topic, 0), channel.topic
+        last[channel.topic] = message.log_time
+    # a message that breaks its schema is caught (the check can fail)
+    (cycle_schema,) = [s for s in summary.schemas.values() if s.name == "rehab.Cycle"]
+    bad = {"start": "soon", "end": 1.0, "outside_fraction": 0.1, "compensatory": None}
+    with pytest.raises(jsonschema.ValidationError):
+        checkers[cycle_schema.id].validate(bad)
+
+
+# ---- a wearable session (contract §8): PDF, FHIR and MCAP
+
+
+@pytest.fixture(scope="module")
+def wearable(tmp_path_factory: pytest.TempPathFactory) -> Analysed:
+    d = tmp_path_factory.mktemp("wearable-exports")
+    sim = d / "sim"
+    args = ["--move", "reaching", "--duration", "45", "--seed", "3", "--ideal"]
+    assert main(["simulate", "--mode", "wearable", *args, "--out", str(sim)]) == 0
+    rec = sim / "recording.jsonl.gz"
+    assert (
+        main(["analyze", str(rec), "--params", str(sim / "params.json"), "--out", str(d / "out")])
+        == 0
+    )
+    return Analysed(rec, d / "out", json.loads((d / "out" / "report.json").read_text()))
+
+
+def test_wearable_pdf_and_fhir(wearable: Analysed, tmp_path: Path) -> None:
+    rep = wearable.report
+    assert rep["movements"], "the simulated reaching gives movements"
+    body = pdf.render(rep, META)
+    img = np.asarray(_page_one(body, tmp_path)).astype(int)
+    assert np.any(img < 200, axis=2).mean() > 0.03
+    blue = (img[..., 2] > 130) & (img[..., 0] < 80) & (img[..., 1] < 140)  # paths, no verdict
+    assert blue.sum() > 50
+    assert _pages(body, tmp_path) <= 2
+    b = Bundle.model_validate(fhir.bundle(rep, META))
+    report = b.entry[1].resource
+    assert "Wearable" in report.code.text
+    obs = {o.resource.code.coding[-1].code: o.resource for o in b.entry[2:]}
+    assert float(obs["movements"].valueQuantity.value) == len(rep["movements"])
+    assert "cycles" not in obs and "compensatory_cycles_pct" not in obs
+    for name in ("shoulder_elevation_deg", "elbow_flexion_deg", "shoulder_flexion_deg"):
+        o = obs[f"rom.{name}"]
+        stats = rep["anatomical_rom"]["session"][name]
+        assert float(o.valueQuantity.value) == pytest.approx(stats["range"])
+        assert o.method.coding[0].code == "method.wearable"
+    assert obs["rom.elbow_flexion_deg"].bodySite.coding[0].code == "16953009"
+    assert float(obs["elbow_flexion_range_deg"].valueQuantity.value) == pytest.approx(
+        rep["anatomical_rom"]["session"]["elbow_flexion_deg"]["range"]
+    )
+    minutes = sum(m["end"] - m["start"] for m in rep["movements"]) / 60
+    assert float(obs["exercise_duration"].valueQuantity.value) == pytest.approx(minutes)
+
+
+def test_wearable_mcap_holds_joints_and_movements(wearable: Analysed, tmp_path: Path) -> None:
+    from backend.analysis_wearable import read_joints
+
+    jsonschema = _validators()
+    path = tmp_path / "w.mcap"
+    args = ["export", str(wearable.recording), "--analysis", str(wearable.out)]
+    assert main([*args, "--mcap", str(path)]) == 0
+    got = _read_mcap(path.read_bytes())
+    joints = read_joints(wearable.out / "joints.csv")
+    rows = [g for g in got if g[0] == "rehab/wear01/joints"]
+    assert len(rows) == len(joints["t"])
+    for i in (0, len(rows) // 2, len(rows) - 1):
+        for k, col in joints.items():
+            assert rows[i][4][k] == (None if np.isnan(col[i]) else col[i])
+    moves = [g for g in got if g[0] == "rehab/wear01/movement"]
+    assert [m[4]["start"] for m in moves] == [m["start"] for m in wearable.report["movements"]]
+    assert all(m[4]["sparc"] is not None for m in moves)
+    from mcap.reader import make_reader
+
+    reader = make_reader(path.open("rb"))
+    for schema, _, message in reader.iter_messages():
+        assert schema is not None
+        jsonschema.validate(json.loads(message.data), json.loads(schema.data))
+    assert {g[0] for g in got} >= {"rehab/wear01/imu/upperarm", "rehab/wear01/imu/forearm"}
+
+
+def test_wearable_session_summary_feeds_the_history(wearable: Analysed) -> None:
+    """The sessions table's summary of a wearable report: the same ISB and elbow keys as a
+    robot session's, so the patient's trends show both modes side by side."""
+    from backend.live.worker import session_summary
+
+    s = session_summary(wearable.report)
+    rom = s["anatomical_rom_deg"]
+    assert (
+        rom["shoulder_elevation_deg"]
+        == (wearable.report["anatomical_rom"]["session"]["shoulder_elevation_deg"])
+    )
+    assert rom["elbow_flexion_deg"]["range"] > 0
+    assert s["movement_quality_median"]["sparc"] is not None
+    assert s["movements"] == len(wearable.report["movements"])
+
+
+MCAP_CHECK = Path(__file__).resolve().parents[2] / "tools" / "mcap-check"
+
+
+def test_mcap_opens_with_foxgloves_reader(analysed: Analysed, tmp_path: Path) -> None:
+    """@mcap/core (Foxglove's MCAP library) reads every message back, indexed and
+    streamed, CRCs checked, in log-time order, each one JSON with a jsonschema schema."""
+    node = shutil.which("node")
+    if node is None or not (MCAP_CHECK / "node_modules" / "@mcap" / "core").is_dir():
+        pytest.skip("@mcap/core not installed: ./run test installs it (tools/mcap-check)")
+    path = tmp_path / "s.mcap"
+    est = read_estimates(analysed.out / "estimates.csv")
+    n = mcap_file.write(path, analysed.recording, analysed.report, est, META)
+    out = subprocess.run(
+        [node, str(MCAP_CHECK / "check.mjs"), str(path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    ).stdout
+    got = json.loads(out)
+    assert got["messages"] == got["streamed"] == got["statistics"] == n
+    assert got["ordered"]
+    mine = _read_mcap(path.read_bytes())
+    topics: dict[str, int] = {}
+    for topic, *_ in mine:
+        topics[topic] = topics.get(topic, 0) + 1
+    assert got["topics"] == topics
+    assert set(got["schemas"]) == {s for _, s, *_ in mine}
+
+
+def test_a_wearable_sessions_outputs_are_regenerated_as_wearable(
+    wearable: Analysed, tmp_path: Path
+) -> None:
+    """A wearable session the service did not stop (no report.json): its outputs are made
+    again by the wearable analysis, not the robot pipeline."""
+    from backend.live import files
+
+    rec = tmp_path / "recordings" / "5.jsonl.gz"
+    rec.parent.mkdir()
+    shutil.copy(wearable.recording, rec)
+    params = json.loads((wearable.recording.parent / "params.json").read_text())
+    report = files.regenerate(rec, params, "wear01")
+    assert report["mode"] == "wearable"
+    assert report["anatomical_rom"]["session"] == wearable.report["anatomical_rom"]["session"]
+    assert (files.outputs_dir(rec) / "joints.csv").is_file()

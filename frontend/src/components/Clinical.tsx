@@ -7,7 +7,7 @@ import type { AlignedData } from "uplot";
 
 import { deg, num } from "../lib/format";
 import { LINE, type ChartSpec } from "../lib/plots";
-import { QUALITY_FIELDS, type AnatomicalRom, type MovementQuality, type QualityField, type Range } from "../lib/types";
+import { QUALITY_FIELDS, type AnatomicalRom, type MovementQuality, type QualityCycle, type QualityField, type Range } from "../lib/types";
 import { StaticChart } from "./StaticChart";
 
 export const ANGLE_NAMES: Record<string, string> = {
@@ -15,7 +15,15 @@ export const ANGLE_NAMES: Record<string, string> = {
   shoulder_elevation_deg: "Shoulder elevation",
   shoulder_axial_rotation_deg: "Shoulder axial rotation",
   elbow_flexion_deg: "Elbow flexion",
+  // the wearable mode's own joint angles (contract §8), beside the ISB ones
+  shoulder_flexion_deg: "Shoulder flexion (model)",
+  shoulder_abduction_deg: "Shoulder abduction (model)",
+  shoulder_rotation_deg: "Shoulder internal rotation (model)",
+  forearm_pronation_deg: "Forearm pronation (model)",
 };
+
+/** What a report's rows are: a robot session's judged cycles or a wearable one's movements. */
+export type Unit = "cycle" | "movement";
 
 /** label, unit, digits */
 export const QUALITY_NAMES: Record<QualityField, [string, string, number]> = {
@@ -63,7 +71,7 @@ export function RomTable({ rom, caption }: { rom: Record<string, Range>; caption
   );
 }
 
-export function AnatomicalRomSection({ rom, t0 }: { rom: AnatomicalRom; t0: number }) {
+export function AnatomicalRomSection({ rom, t0, unit = "cycle" }: { rom: AnatomicalRom; t0: number; unit?: Unit }) {
   const names = Object.keys(rom.session);
   return (
     <section class="card" aria-labelledby="rom-title">
@@ -71,10 +79,12 @@ export function AnatomicalRomSection({ rom, t0 }: { rom: AnatomicalRom; t0: numb
       <RomTable rom={rom.session} caption="Range of motion of the session, degrees" />
       {rom.cycles.length > 0 && (
         <details>
-          <summary>Per cycle ({rom.cycles.length} cycles): p5 – p95 and active range</summary>
+          <summary>
+            Per {unit} ({rom.cycles.length} {unit}s): p5 – p95 and active range
+          </summary>
           <div class="table-wrap">
             <table class="table" data-table="rom-cycles">
-              <caption class="sr-only">Range of motion per cycle, degrees</caption>
+              <caption class="sr-only">Range of motion per {unit}, degrees</caption>
               <thead>
                 <tr>
                   <th scope="col">#</th>
@@ -111,9 +121,14 @@ export function AnatomicalRomSection({ rom, t0 }: { rom: AnatomicalRom; t0: numb
 
 const OK = LINE.ok;
 const COMP = "#D55E00"; // Okabe–Ito vermillion
+const NONE = LINE.disp; // a wearable session's movements: no verdict
+
+function verdictOf(c: QualityCycle): "compensatory" | "proper" | "none" {
+  return c.compensatory == null ? "none" : c.compensatory ? "compensatory" : "proper";
+}
 
 /** Every cycle's wrist path from above (x right, y forward), one colour per verdict. */
-export function WristPaths({ quality }: { quality: MovementQuality }) {
+export function WristPaths({ quality, unit = "cycle" }: { quality: MovementQuality; unit?: Unit }) {
   const paths = quality.cycles.filter((c) => c.path_xy.length > 1);
   const box = useMemo(() => {
     let x0 = Infinity, x1 = -Infinity, y0 = Infinity, y1 = -Infinity;
@@ -129,18 +144,26 @@ export function WristPaths({ quality }: { quality: MovementQuality }) {
   }, [quality]);
   if (!paths.length) return <p class="muted">No wrist path.</p>;
   const nComp = paths.filter((c) => c.compensatory).length;
+  const judged = paths.some((c) => c.compensatory != null);
   // y forward is up on screen: flip y
   const pts = (xy: [number, number][]) => xy.map(([x, y]) => `${(x - box.x0).toFixed(4)},${(box.h - (y - box.y0)).toFixed(4)}`).join(" ");
   return (
     <figure class="plot" data-plot="wrist-paths">
       <figcaption>
-        Wrist path from above, per cycle (forward is up): <span style={{ color: OK }}>━ proper ({paths.length - nComp})</span>{" "}
-        <span style={{ color: COMP }}>┅ compensatory ({nComp})</span> · {(box.w * 100).toFixed(0)} × {(box.h * 100).toFixed(0)} cm
+        Wrist path from above, per {unit} (forward is up):{" "}
+        {judged ? (
+          <>
+            <span style={{ color: OK }}>━ proper ({paths.length - nComp})</span> <span style={{ color: COMP }}>┅ compensatory ({nComp})</span>
+          </>
+        ) : (
+          <span style={{ color: NONE }}>━ {paths.length} {unit}s, no verdict</span>
+        )}{" "}
+        · {(box.w * 100).toFixed(0)} × {(box.h * 100).toFixed(0)} cm
       </figcaption>
       <svg
         viewBox={`0 0 ${box.w} ${box.h}`}
         role="img"
-        aria-label={`Wrist paths of ${paths.length} cycles seen from above, ${nComp} compensatory`}
+        aria-label={`Wrist paths of ${paths.length} ${unit}s seen from above${judged ? `, ${nComp} compensatory` : ""}`}
         style={{ width: "100%", maxWidth: "420px", maxHeight: "320px", background: "#fafafa" }}
       >
         {paths.map((c, i) => (
@@ -148,11 +171,11 @@ export function WristPaths({ quality }: { quality: MovementQuality }) {
             key={i}
             points={pts(c.path_xy)}
             fill="none"
-            stroke={c.compensatory ? COMP : OK}
+            stroke={{ compensatory: COMP, proper: OK, none: NONE }[verdictOf(c)]}
             stroke-width={box.w / 250}
             stroke-dasharray={c.compensatory ? `${box.w / 80} ${box.w / 160}` : undefined}
             opacity={0.8}
-            data-verdict={c.compensatory ? "compensatory" : "proper"}
+            data-verdict={verdictOf(c)}
           />
         ))}
       </svg>
@@ -160,18 +183,18 @@ export function WristPaths({ quality }: { quality: MovementQuality }) {
   );
 }
 
-export function MovementQualitySection({ quality, t0 }: { quality: MovementQuality; t0: number }) {
+export function MovementQualitySection({ quality, t0, unit = "cycle" }: { quality: MovementQuality; t0: number; unit?: Unit }) {
   const labels = quality.cycles.map((_, i) => String(i + 1));
   const spec: ChartSpec = useMemo(
     () => ({
-      title: "Smoothness per cycle",
+      title: `Smoothness per ${unit}`,
       yLabel: "SPARC",
       x: "sessions",
       xLabels: () => labels,
       height: 200,
       series: [{ label: "SPARC (closer to 0 is smoother)", color: LINE.disp, points: true, width: 1.5 }],
     }),
-    [labels.join("|")],
+    [labels.join("|"), unit],
   );
   const data = useMemo(() => [quality.cycles.map((_, i) => i), quality.cycles.map((c) => c.sparc)] as AlignedData, [quality]);
   const med = quality.session_median;
@@ -189,12 +212,12 @@ export function MovementQualitySection({ quality, t0 }: { quality: MovementQuali
         ))}
       </div>
       <div class="plots">
-        <WristPaths quality={quality} />
-        {quality.cycles.length > 0 && <StaticChart name="report-sparc" caption="Smoothness (SPARC) per cycle" spec={spec} data={data} />}
+        <WristPaths quality={quality} unit={unit} />
+        {quality.cycles.length > 0 && <StaticChart name="report-sparc" caption={`Smoothness (SPARC) per ${unit}`} spec={spec} data={data} />}
       </div>
       <div class="table-wrap">
         <table class="table" data-table="movement-quality">
-          <caption class="sr-only">Movement quality per cycle</caption>
+          <caption class="sr-only">Movement quality per {unit}</caption>
           <thead>
             <tr>
               <th scope="col">#</th>
@@ -213,7 +236,15 @@ export function MovementQualitySection({ quality, t0 }: { quality: MovementQuali
               <tr key={i}>
                 <td>{i + 1}</td>
                 <td>{num(c.start - t0, 1, "s")}</td>
-                <td>{c.compensatory ? <span class="verdict verdict--comp">✗ Compensatory</span> : <span class="verdict verdict--ok">✓ Proper</span>}</td>
+                <td>
+                  {c.compensatory == null ? (
+                    <span class="muted">no verdict</span>
+                  ) : c.compensatory ? (
+                    <span class="verdict verdict--comp">✗ Compensatory</span>
+                  ) : (
+                    <span class="verdict verdict--ok">✓ Proper</span>
+                  )}
+                </td>
                 {QUALITY_FIELDS.map((k) => (
                   <td key={k}>{num(c[k], QUALITY_NAMES[k][2])}</td>
                 ))}

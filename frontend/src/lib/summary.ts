@@ -48,7 +48,8 @@ export function figuresOf(s: SessionSummary | null | undefined): SessionFigures 
     cycles,
     compensatory: comp,
     compShare: n(s.compensatory_share) ?? (cycles && comp !== null ? comp / cycles : null),
-    elbowRange: rangeOf(s.elbow_flexion_deg),
+    // a wearable session has the elbow only in its anatomical ROM (the same angle)
+    elbowRange: rangeOf(s.elbow_flexion_deg) ?? rangeOf(obj(s.anatomical_rom_deg)?.elbow_flexion_deg),
     elevRange: rangeOf(s.upper_arm_elevation_deg),
     azimRange: rangeOf(s.upper_arm_azimuth_deg),
     dispMedian: disp ? n(disp.median) : null,

@@ -169,6 +169,9 @@ export interface Report {
   anatomical_rom?: AnatomicalRom;
   movement_quality?: MovementQuality;
   key_figures?: KeyFigureOut[];
+  /** "wearable": contract §8 (no robot cycles; ``movements`` instead) */
+  mode?: "robot" | "wearable";
+  movements?: { start: number; end: number }[];
   [key: string]: unknown;
 }
 

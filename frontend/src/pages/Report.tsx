@@ -6,7 +6,7 @@ import { AnatomicalRomSection, MovementQualitySection } from "../components/Clin
 import { StaticChart } from "../components/StaticChart";
 import { api, ApiError, errorText, getText } from "../lib/api";
 import { parseDetails, parseEstimates, type DetailColumns, type EstimateColumns } from "../lib/csv";
-import { cm, dateTime, deg, duration, pct, seconds } from "../lib/format";
+import { cm, dateTime, deg, duration, num, pct, seconds } from "../lib/format";
 import { LINE, type ChartSpec } from "../lib/plots";
 import { qualityRows } from "../lib/quality";
 import { unwrapReport, type Cycle, type Report, type ReportOut, type Session } from "../lib/types";
@@ -23,17 +23,29 @@ export function ReportPage({ id }: { id: number }) {
   useEffect(() => {
     let alive = true;
     api.get<Session>(`/api/sessions/${id}`).then((s) => alive && setSession(s)).catch((e) => alive && setError(errorText(e)));
+    // the robot mode's cycles and CSVs; a wearable session (contract §8) has neither
+    const loadRobot = () => {
+      api.get<Cycle[]>(`/api/sessions/${id}/cycles`).then((c) => alive && setCycles(c)).catch(() => alive && setCycles([]));
+      getText(`/api/sessions/${id}/estimates.csv`)
+        .then((t) => alive && setEst(parseEstimates(t)))
+        .catch(() => undefined);
+      getText(`/api/sessions/${id}/details.csv`)
+        .then((t) => alive && setDet(parseDetails(t)))
+        .catch(() => undefined);
+    };
     api
       .get<ReportOut>(`/api/sessions/${id}/report`)
-      .then((r) => alive && setReport(unwrapReport(r)))
-      .catch((e) => alive && setReportError(e instanceof ApiError && e.status === 404 ? "This session has no report (no data was recorded)." : errorText(e)));
-    api.get<Cycle[]>(`/api/sessions/${id}/cycles`).then((c) => alive && setCycles(c)).catch(() => alive && setCycles([]));
-    getText(`/api/sessions/${id}/estimates.csv`)
-      .then((t) => alive && setEst(parseEstimates(t)))
-      .catch(() => undefined);
-    getText(`/api/sessions/${id}/details.csv`)
-      .then((t) => alive && setDet(parseDetails(t)))
-      .catch(() => undefined);
+      .then((r) => {
+        if (!alive) return;
+        const rep = unwrapReport(r);
+        setReport(rep);
+        if (rep.mode !== "wearable") loadRobot();
+      })
+      .catch((e) => {
+        if (!alive) return;
+        setReportError(e instanceof ApiError && e.status === 404 ? "This session has no report (no data was recorded)." : errorText(e));
+        loadRobot();
+      });
     return () => {
       alive = false;
     };
@@ -114,6 +126,9 @@ export function ReportPage({ id }: { id: number }) {
   const azim = report?.upper_arm_azimuth_deg;
   const disp = report?.shoulder_displacement_m;
   const base = `/api/sessions/${id}`;
+  // a wearable session (contract §8): joint angles, movements, no robot cycles nor verdicts
+  const wearable = report?.mode === "wearable";
+  const unit = wearable ? "movement" : "cycle";
 
   return (
     <section class="page page--report" aria-labelledby="report-title">
@@ -128,6 +143,18 @@ export function ReportPage({ id }: { id: number }) {
         </span>
       </div>
 
+      {wearable ? (
+        <div class="figures figures--row figures--key" aria-label="Summary" data-mode="wearable">
+          {(report?.key_figures ?? []).slice(0, 3).map((f) => (
+            <KeyFigure
+              key={f.key}
+              label={f.label}
+              value={f.unit === "deg" ? deg(f.value) : num(f.value, f.unit === "1" ? 2 : 0, f.unit === "1" ? "" : f.unit)}
+              hint={f.detail}
+            />
+          ))}
+        </div>
+      ) : (
       <div class="figures figures--row figures--key" aria-label="Summary">
         <KeyFigure
           label="Compensatory cycles"
@@ -138,6 +165,7 @@ export function ReportPage({ id }: { id: number }) {
         <KeyFigure label="Shoulder displacement (median)" value={cm(disp?.median)} hint={`95 % of the time below ${cm(disp?.p95)} · tolerance ${cm(tol, 0)}`} />
         <KeyFigure label="Elbow range of motion" value={deg(elbow?.range)} hint={elbow?.p5 != null && elbow?.p95 != null ? `${deg(elbow.p5)} to ${deg(elbow.p95)}` : undefined} />
       </div>
+      )}
 
       {reportError && <Alert kind="warn">{reportError}</Alert>}
 
@@ -148,12 +176,16 @@ export function ReportPage({ id }: { id: number }) {
             <a class="btn" href={`${base}/report`} download={`session-${id}-report.json`} data-export="json">
               Report (JSON)
             </a>
+            {!wearable && (
             <a class="btn" href={`${base}/estimates.csv`} download={`session-${id}-estimates.csv`} data-export="csv">
               Estimates (CSV)
             </a>
+            )}
+            {!wearable && (
             <a class="btn" href={`${base}/details.csv`} download={`session-${id}-details.csv`} data-export="details">
               Details (CSV)
             </a>
+            )}
             <a class="btn" href={`${base}/recording.jsonl.gz`} download={`session-${id}-recording.jsonl.gz`} data-export="recording">
               Raw recording
             </a>
@@ -170,6 +202,7 @@ export function ReportPage({ id }: { id: number }) {
         </div>
       </section>
 
+      {!wearable && (
       <section class="card" aria-labelledby="plots-title">
         <h2 id="plots-title">Over the session</h2>
         {!data ? (
@@ -194,7 +227,9 @@ export function ReportPage({ id }: { id: number }) {
           </div>
         )}
       </section>
+      )}
 
+      {!wearable && (
       <section class="card" aria-labelledby="motion-title">
         <h2 id="motion-title">Range of motion</h2>
         <dl class="facts facts--grid">
@@ -228,10 +263,12 @@ export function ReportPage({ id }: { id: number }) {
           </div>
         </dl>
       </section>
+      )}
 
-      {report?.anatomical_rom && <AnatomicalRomSection rom={report.anatomical_rom} t0={t0} />}
-      {report?.movement_quality && <MovementQualitySection quality={report.movement_quality} t0={t0} />}
+      {report?.anatomical_rom && <AnatomicalRomSection rom={report.anatomical_rom} t0={t0} unit={unit} />}
+      {report?.movement_quality && <MovementQualitySection quality={report.movement_quality} t0={t0} unit={unit} />}
 
+      {!wearable && (
       <section class="card" aria-labelledby="cycles-title">
         <div class="card__head">
           <h2 id="cycles-title">Cycles</h2>
@@ -239,6 +276,7 @@ export function ReportPage({ id }: { id: number }) {
         </div>
         <CycleTable cycles={cycleList} t0={t0} caption="Cycles with their verdicts" full />
       </section>
+      )}
 
       <section class="card" aria-labelledby="quality-title">
         <h2 id="quality-title">Data quality</h2>
