@@ -21,9 +21,11 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import logging
 import threading
 import time
+from collections import Counter
 from collections.abc import Iterator, Sequence
 from datetime import datetime
 from pathlib import Path
@@ -38,7 +40,7 @@ from backend.db.engine import Database
 from backend.db.models import Cycle, Device, Patient, Session
 from backend.db.sessions import record_cycle
 from backend.deps import LiveUnavailable, SessionInfo
-from backend.live import files, lease
+from backend.live import files, lease, snapshot
 from backend.live.devices import DeviceStats
 from backend.live.ingest import RawMessage
 from backend.live.manager import COMMAND_TIMEOUT_S, LiveManager
@@ -92,16 +94,17 @@ class FeedForwarder:
                 self.dropped += 1
 
 
-def _replay_lines(path: Path) -> Iterator[tuple[str, bytes]]:
-    for line in recording.lines(path):
+def _replay_lines(path: Path, skip: int = 0) -> Iterator[tuple[str, bytes]]:
+    for line in itertools.islice(recording.lines(path), skip, None):
         key, payload = recording.parse(line)
         if key is not None:
             yield key, bytes(payload)
 
 
-def replay(run: LiveRun, path: Path, prefix: str) -> list[tuple[int, CycleVerdict]]:
+def replay(run: LiveRun, path: Path, prefix: str, skip: int = 0) -> list[tuple[int, CycleVerdict]]:
     """The recording's complete lines through ``run`` (into its files, as received), with
-    the bookkeeping a live worker does on its outputs; returns the cycles (index, verdict)."""
+    the bookkeeping a live worker does on its outputs; returns the cycles (index, verdict).
+    ``skip``: lines ``run`` has seen already (restored from a snapshot)."""
     cycles: list[tuple[int, CycleVerdict]] = []
 
     def absorb(out: Output | None) -> None:
@@ -115,7 +118,7 @@ def replay(run: LiveRun, path: Path, prefix: str) -> list[tuple[int, CycleVerdic
                 cycles.append((run.cycle_index, v))
                 run.cycle_index += 1
 
-    for key, payload in _replay_lines(path):
+    for key, payload in _replay_lines(path, skip):
         try:
             kind: str = keys.parse(key, prefix).kind
         except keys.KeyError_:
@@ -126,6 +129,30 @@ def replay(run: LiveRun, path: Path, prefix: str) -> list[tuple[int, CycleVerdic
     if run.fed_since_poll:
         absorb(run.poll())
     return cycles
+
+
+def _cycles_before(run: LiveRun, skip: int) -> list[tuple[int, CycleVerdict]]:
+    """The judged cycles a run restored from a snapshot had (index, verdict), rebuilt from
+    its report's list, for the database rows its previous holder may not have written."""
+    if not skip:
+        return []
+    out = []
+    nan = float("nan")
+    for i, c in enumerate(run.run.cycles[: run.cycle_index]):
+        v = CycleVerdict(
+            start=c["start"],
+            end=c["end"],
+            outside_fraction=c["outside_fraction"],
+            compensatory=c["compensatory"],
+            coverage=c["coverage"],
+            outside_s=nan,
+            max_displacement_m=nan if c["max_displacement_m"] is None else c["max_displacement_m"],
+            mean_displacement_m=nan
+            if c["mean_displacement_m"] is None
+            else c["mean_displacement_m"],
+        )
+        out.append((i, v))
+    return out
 
 
 class WorkerNode(LiveManager):
@@ -148,6 +175,8 @@ class WorkerNode(LiveManager):
         self.paused_steps = 0  # lease steps that found devices past their local deadline
         self.behind = False
         self.takeovers: list[dict[str, Any]] = []  # (device, session, replay seconds)
+        self.snapshots = snapshot.Snapshotter(settings.snapshot_every_s)
+        self.snapshots_rejected: Counter[str] = Counter()  # skipped at takeovers, by reason
         self._token: Any = None
         self._extra: list[Any] = []
         self._feed_pub: zenoh.Publisher | None = None
@@ -256,6 +285,7 @@ class WorkerNode(LiveManager):
             w = super()._worker_for(name)
             if w is not None:
                 w.set_lease(self.held.holder, self.held.epochs[name], lambda: self.held.valid(name))
+                w.snapshots = self.snapshots
         return w
 
     def _device_stats(self, name: str) -> DeviceStats | None:
@@ -472,10 +502,18 @@ class WorkerNode(LiveManager):
         w.paused = True
         t0 = time.monotonic()
         try:
-            staged = files.SessionFiles(self.settings.data_dir, sid, staging=f"epoch{epoch}")
-            run = LiveRun(name, self.prefix, DeviceStats(name), context, staged)
+            ready = await asyncio.to_thread(
+                snapshot.prepare,
+                self.settings.data_dir,
+                context,
+                name,
+                self.prefix,
+                f"epoch{epoch}",
+                self.snapshots_rejected,
+            )
+            run, staged = ready.run, ready.files
             try:
-                cycles = await asyncio.to_thread(replay, run, path, self.prefix)
+                cycles = await asyncio.to_thread(replay, run, path, self.prefix, ready.skip)
             except BaseException:
                 log.exception("device %s: replay of session %s failed", name, sid)
                 staged.close(None)  # the next attempt starts its staged files afresh
@@ -489,13 +527,27 @@ class WorkerNode(LiveManager):
             run.stats = w.stats
             w.live = run
             self._started_at[sid] = time.monotonic()
-            self._store_missing_cycles(w, sid, cycles)
+            self._store_missing_cycles(w, sid, _cycles_before(run, ready.skip) + cycles)
         finally:
             w.paused = False
             self.scheduler.ready(w)
         seconds = time.monotonic() - t0
-        self.takeovers.append({"device": name, "session": sid, "replay_s": round(seconds, 3)})
-        log.warning("device %s: session %s taken over (replayed in %.2f s)", name, sid, seconds)
+        self.takeovers.append(
+            {
+                "device": name,
+                "session": sid,
+                "replay_s": round(seconds, 3),
+                "snapshot": ready.snapshot.name if ready.snapshot else None,
+                "skipped_lines": ready.skip,
+            }
+        )
+        log.warning(
+            "device %s: session %s taken over (%s, replayed in %.2f s)",
+            name,
+            sid,
+            f"from snapshot {ready.snapshot.name}" if ready.snapshot else "whole recording",
+            seconds,
+        )
         self.changed(name)
 
     def _store_missing_cycles(

@@ -31,6 +31,7 @@ from backend.live.files import SessionFiles
 from backend.live.hub import Hub
 from backend.live.ingest import RawMessage
 from backend.live.run import LiveRun, SessionContext, rows_ready
+from backend.live.snapshot import Snapshotter
 from backend.live.store import DbWriter
 from backend.live.zenoh_io import ZenohIO
 from estimators.output import Output
@@ -191,6 +192,7 @@ class DeviceWorker:
         self.fence: tuple[str, str, int] | None = None
         self.paused = False  # a takeover replays the recording first; messages wait
         self._attachment: bytes | None = None  # "<holder>:<epoch>" on each estimate put
+        self.snapshots: Snapshotter | None = None  # a worker process's (backend.live.snapshot)
 
     def set_lease(self, holder: str, epoch: int, alive: Callable[[], bool]) -> None:
         self.alive = alive
@@ -258,6 +260,12 @@ class DeviceWorker:
             self.stats.reject("internal_error")
             if self.internal_errors <= 3:
                 log.exception("device %s: worker error", self.name)
+        if self.snapshots is not None and self.fence is not None:
+            try:
+                self.snapshots.after_turn(self.live, self.fence[2], self.alive)
+            except Exception:  # never the device's data: counted, logged
+                self.snapshots.counts["failed"] += 1
+                log.exception("device %s: snapshot failed", self.name)
         if self._queue:
             self._scheduler.ready(self)
 
