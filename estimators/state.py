@@ -104,12 +104,16 @@ class _Encoder:
             return ["N", obj.dtype.str, obj.tobytes()]
         if t is list:
             n = self._number(obj)
+            if set(map(type, obj)) <= _SCALARS:  # a list of numbers: as it is (in C)
+                return ["L", n, obj]
             return ["L", n, [self.enc(x) for x in obj]]
         if t is dict:
             n = self._number(obj)
             return ["D", n, [[self.enc(k), self.enc(v)] for k, v in obj.items()]]
         if t is tuple:
             n = self._number(obj)
+            if set(map(type, obj)) <= _SCALARS:
+                return ["T", n, list(obj)]
             return ["T", n, [self.enc(x) for x in obj]]
         if t is deque:
             n = self._number(obj)
@@ -133,6 +137,10 @@ class _Encoder:
 
 
 _VALUE_BASES: tuple[type, ...] = (float, int, str)
+
+
+# scalars msgspec writes as they are (ints only within MessagePack's range: checked)
+_SCALARS = frozenset({float, bool, str, type(None)})
 
 
 def _qualname(t: type) -> str:

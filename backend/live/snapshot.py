@@ -146,6 +146,10 @@ def capture(run: LiveRun, epoch: int) -> tuple[Path, bytes]:
     off the loop. Raises :class:`estimators.state.StateError` if the state is not plain
     data (a bug: counted by the caller, the session goes on)."""
     assert run.session is not None and run.files is not None
+    # the rows waiting to be formatted (up to 1024 polls' worth of small arrays) go to the
+    # files now rather than into the state: the same text (formatting is batch-invariant),
+    # work moved forward, a state of a few large arrays
+    run.run.format_rows()
     marks = run.files.marks()
     body = state.dump(run, _externals(run), MODULES)
     info = run.session.info
@@ -293,6 +297,8 @@ class Snapshotter:
 
     def __init__(self, every_s: float = EVERY_S) -> None:
         self.every_s = every_s
+        if every_s > 0:
+            fingerprint()  # now, not on a device's turn
         self.counts: Counter[str] = Counter()
         self._next: dict[int, float] = {}  # session → stream time of its next snapshot
         self._busy: set[int] = set()
