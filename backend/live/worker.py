@@ -240,6 +240,23 @@ class DeviceWorker:
     def queued(self) -> int:
         return len(self._queue)
 
+    def queued_messages(self) -> list[RawMessage]:
+        return [m for m in self._queue if isinstance(m, RawMessage)]
+
+    def recover(self, msgs: list[RawMessage]) -> None:
+        """Messages recovered from the device's publication cache (a takeover's gap), in
+        front of the queue: they were published before everything waiting in it."""
+        st = self.stats
+        for m in reversed(msgs):
+            st.messages += 1
+            st.bytes += m.size
+            if not self._budget.take(m.size, self._bytes):
+                st.dropped += 1
+                continue
+            self._queue.appendleft(m)
+            self._bytes += m.size
+        self._scheduler.ready(self)
+
     # ------------------------------------------------------------------ a turn
 
     def turn(self) -> None:
