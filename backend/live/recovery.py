@@ -54,7 +54,7 @@ class CacheHistory:
         self.opened = time.monotonic()
         self._sub: Any = zenoh_ext.declare_advanced_subscriber(
             session,
-            f"{prefix}/{device}/*",
+            f"{prefix}/{device}/**",
             self._on,
             history=zenoh_ext.HistoryConfig(max_age=max_age_s),
         )
