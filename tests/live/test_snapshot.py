@@ -273,3 +273,39 @@ def test_failover_of_a_twenty_minute_session_resumes_within_two_seconds(
     assert (out / "estimates.csv").read_text() == CSV_HEADER + "\n" + "".join(
         x + "\n" for x in want_run.est_lines
     )
+
+
+def test_the_holder_snapshots_by_stream_time_off_the_loop(
+    tmp_path: Path, msgs: list[tuple[str, bytes]]
+) -> None:
+    """The worker's side: after each turn, a snapshot once ``every_s`` of data has passed
+    since the last (the first due ``every_s`` after the session's first sample), written by
+    a thread; none while the lease is not surely held; a takeover resumes from it."""
+    import asyncio
+
+    async def run_holder() -> snapshot.Snapshotter:
+        snaps = snapshot.Snapshotter(every_s=EVERY_S)
+        files = SessionFiles(tmp_path, 1)
+        run = LiveRun(DEVICE, "rehab", DeviceStats(DEVICE), _context(), files)
+        held = [True]
+        for i, (key, payload) in enumerate(msgs):
+            _feed(run, key, payload)
+            if i == len(msgs) // 2:
+                held[0] = False  # lease paused: the due snapshot is not taken
+            snaps.after_turn(run, 4, lambda: held[0])
+            await asyncio.sleep(0)
+        for _ in range(200):
+            if not snaps._busy:
+                break
+            await asyncio.sleep(0.01)
+        files.flush()
+        return snaps
+
+    snaps = asyncio.run(run_holder())
+    # 100 s of data: due at 20, 40 (held), then 60, 80 with the lease not held
+    assert snaps.counts["written"] == 2, snaps.counts
+    (only,) = snapshot.candidates(tmp_path / "recordings" / "1.jsonl.gz")
+    assert only.name.endswith(".e4.snap")
+    ready, rejected, _ = _take_over(tmp_path, [], epoch=5)
+    assert ready.snapshot == only and not rejected
+    assert _outputs(tmp_path) == _uninterrupted(tmp_path / "c", msgs)
