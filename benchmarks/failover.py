@@ -81,9 +81,10 @@ def main() -> None:
                 break
         files.flush()  # SIGKILL: nothing closed
         rec = data / "recordings" / "1.jsonl.gz"
+        died = run.latest_t or 0.0
         print(
-            f"session: {run.latest_t:.0f} s of data, recording {os.path.getsize(rec) / 1e6:.1f} MB,"
-            f" {files.recorder.lines} lines; died {run.latest_t - last_snap_t:.0f} s after the last snapshot"
+            f"session: {died:.0f} s of data, recording {os.path.getsize(rec) / 1e6:.1f} MB,"
+            f" {files.recorder.lines} lines; died {died - last_snap_t:.0f} s after the last snapshot"
         )
         print(
             f"snapshot capture on the device's turn: median {statistics.median(captures) * 1e3:.1f}"
