@@ -15,8 +15,10 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from backend.analysis import CSV_HEADER, analyze, dump_report
 from backend.live import recovery
 from backend.live.ingest import RawMessage, recorded_form
+from estimators.params import PipelineParams
 from protocol import keys, recording
 from protocol.zenoh_config import make_config
 from simulator import SimConfig, simulate
@@ -119,6 +121,13 @@ def test_sigkill_with_a_publication_cache_leaves_no_gap(tmp_path: Path) -> None:
             lines = [(k, bytes(p)) for k, p in recording.read(stored) if k is not None]
             mine = [(m.key, m.payload) for m in outgoing if m.key.split("/")[1] == name]
             assert _contiguous(lines, mine) == 0, f"{name}: messages missing"
+            # and the files are those `rehab analyze` makes of the recording
+            run, want = analyze(stored, PipelineParams.from_json(sessions[name]["params"]))
+            out = stored.parent / str(sessions[name]["id"])
+            assert (out / "estimates.csv").read_text() == CSV_HEADER + "\n" + "".join(
+                x + "\n" for x in run.est_lines
+            ), name
+            assert (out / "report.json").read_text() == dump_report(want), name
     finally:
         stop.set()
         if player is not None:
