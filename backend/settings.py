@@ -127,6 +127,12 @@ class Settings(BaseSettings):
         description="Worker processes the API node starts (`rehab serve --workers`; 0: API "
         "only, remote workers); unset: one process runs everything (tests, the demo).",
     )
+    snapshot_every_s: float = Field(
+        default=30.0,
+        ge=0,
+        description="A worker snapshots each session's pipeline this often (seconds of the "
+        "device's data) beside its recording; a takeover replays only what follows (0: off).",
+    )
 
     # Clinical records: a FHIR R4 server's base URL that receives a session's Bundle on
     # request (POST /api/sessions/{id}/fhir/send); unset = off.

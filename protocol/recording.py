@@ -15,7 +15,7 @@ import zlib
 from collections.abc import Iterable, Iterator
 from itertools import chain
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, NamedTuple
 
 import msgspec
 
@@ -121,6 +121,48 @@ def write(path: str | Path, messages: Iterable[tuple[str, Any]]) -> int:
     return n
 
 
+class Mark(NamedTuple):
+    """A file's first ``size`` bytes (CRC-32 ``crc``), holding ``lines`` lines; for a
+    recording in gzip, the CRC and length of the member's data up to there."""
+
+    size: int
+    crc: int
+    lines: int
+    data_crc: int = 0
+    data_size: int = 0
+
+
+# An empty final deflate block (fixed Huffman: BFINAL, BTYPE 01, end-of-block code): after
+# a sync flush the stream is byte-aligned, so these two bytes end it where it stands.
+_FINAL_BLOCK = b"\x03\x00"
+
+
+def copy_prefix(src: Path, dst: Path, mark: Mark) -> Mark:
+    """``dst`` := the first ``mark.size`` bytes of ``src`` (raises ``ValueError`` if they
+    are not those the mark describes); for gzip, ended as a complete member, to which a
+    ``Writer(dst, "a", start=<returned mark>)`` appends members. No recompression: a
+    takeover copies hours of recording in the time of a file copy."""
+    crc = 0
+    left = mark.size
+    with open(src, "rb") as fi, open(dst, "wb") as fo:
+        while left:
+            chunk = fi.read(min(left, _CHUNK))
+            if not chunk:
+                raise ValueError(f"{src.name} is shorter than its mark")
+            crc = zlib.crc32(chunk, crc)
+            fo.write(chunk)
+            left -= len(chunk)
+        if crc != mark.crc:
+            raise ValueError(f"{src.name} does not begin with the bytes of its mark")
+        size = mark.size
+        if src.suffix == ".gz" and mark.size:
+            end = _FINAL_BLOCK + struct.pack("<II", mark.data_crc, mark.data_size & 0xFFFFFFFF)
+            fo.write(end)
+            crc = zlib.crc32(end, crc)
+            size += len(end)
+    return Mark(size, crc, mark.lines)
+
+
 # The recorder's deflate state: a 4 KiB window and a small hash (zlib's memLevel 4) instead
 # of gzip's 32 KiB and memLevel 8: ~25 KiB per stream instead of ~260. A live service writes
 # one stream per session, each flush a few KiB; with fifty of them the large states no longer
@@ -148,11 +190,22 @@ class Writer:
     BUFFER_BYTES = 1 << 20  # appended bytes held before they go to the compressor anyway
     _HEADS = 4096  # line openings remembered, one per key
 
-    def __init__(self, path: str | Path, mode: str = "a", compresslevel: int = 6) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        mode: str = "a",
+        compresslevel: int = 6,
+        start: Mark | None = None,
+    ) -> None:
+        """``start``: the file already holds that much (mode ``"a"``; a takeover's copy of
+        a recording's prefix): :meth:`mark` goes on counting from it."""
         if mode not in ("a", "w", "x"):
             raise ValueError("mode must be 'a', 'w' or 'x'")
         self.path = Path(path)
-        self.lines = 0
+        self.lines = start.lines if start else 0
+        # the file's bytes and their CRC-32 (what a snapshot's mark checks a file against)
+        self.written = start.size if start else 0
+        self.written_crc = start.crc if start else 0
         self._raw: IO[bytes] = open(self.path, mode + "b", buffering=0)  # noqa: SIM115
         self._z: zlib._Compress | None = None  # for .gz
         self._crc = 0
@@ -210,6 +263,8 @@ class Writer:
             self._put(out)
 
     def _put(self, data: bytes) -> None:
+        self.written += len(data)
+        self.written_crc = zlib.crc32(data, self.written_crc)
         view = memoryview(data)
         while view:  # an unbuffered write may take less than all
             view = view[self._raw.write(view) :]
@@ -217,6 +272,12 @@ class Writer:
     def flush(self) -> None:
         if not self._closed:
             self._write(sync=True)
+
+    def mark(self) -> Mark:
+        """Flush, then where the file stands: its bytes, their CRC, the lines in them, and
+        (``.gz``) the member's data so far, which :func:`copy_prefix` needs to end it."""
+        self.flush()
+        return Mark(self.written, self.written_crc, self.lines, self._crc, self._size)
 
     def close(self) -> None:
         """Flush, end the gzip member (its trailer) and close."""

@@ -26,6 +26,7 @@ from typing import Any
 
 import orjson
 import zenoh
+import zenoh.ext as zenoh_ext
 
 from protocol import keys, recording, wire
 from protocol.zenoh_config import make_config
@@ -87,23 +88,39 @@ def devices_of(outgoing: Iterable[Outgoing], prefix: str = keys.DEFAULT_PREFIX) 
     return list(found)
 
 
-def _matching(pub: zenoh.Publisher) -> bool:
+def _matching(pub: Any) -> bool:
+    if not hasattr(pub, "matching_status"):
+        return True  # an AdvancedPublisher: a late subscriber gets its cache
     status: object = pub.matching_status  # a MatchingStatus object at runtime (stub: bool)
     return bool(getattr(status, "matching", status))
 
 
 class Publisher:
-    """Publishers declared once per key, a liveliness token per device."""
+    """Publishers declared once per key, a liveliness token per device.
 
-    def __init__(self, session: zenoh.Session, prefix: str = keys.DEFAULT_PREFIX) -> None:
+    ``cache``: a publication cache of that many messages per key (zenoh-ext's
+    ``AdvancedPublisher``, with publisher detection). A worker that takes the device over
+    queries it and records the messages published while no worker held the device (see
+    docs/scaling.md, "Seconds lost"). Device makers: the same two settings on a real
+    device's publishers (``cache`` sized for a few seconds of its messages, and
+    ``timestamping`` enabled in its Zenoh configuration, which the cache requires).
+    """
+
+    def __init__(
+        self, session: zenoh.Session, prefix: str = keys.DEFAULT_PREFIX, cache: int = 0
+    ) -> None:
         self.session = session
         self.prefix = prefix
-        self._pubs: dict[str, zenoh.Publisher] = {}
+        self.cache = cache
+        self._pubs: dict[str, Any] = {}  # zenoh.Publisher, or zenoh.ext.AdvancedPublisher
         self._tokens: dict[str, zenoh.LivelinessToken] = {}
 
     @classmethod
-    def connect(cls, endpoint: str, prefix: str = keys.DEFAULT_PREFIX) -> Publisher:
-        return cls(zenoh.open(make_config(connect=endpoint, mode="peer")), prefix)
+    def connect(cls, endpoint: str, prefix: str = keys.DEFAULT_PREFIX, cache: int = 0) -> Publisher:
+        config = make_config(connect=endpoint, mode="peer")
+        if cache:
+            config.insert_json5("timestamping/enabled", "true")  # the cache needs them
+        return cls(zenoh.open(config), prefix, cache)
 
     def declare(self, outgoing: Sequence[Outgoing]) -> None:
         for m in outgoing:
@@ -120,14 +137,25 @@ class Publisher:
     def declare_key(self, key: str) -> None:
         self._publisher(key)
 
-    def _publisher(self, key: str) -> zenoh.Publisher:
+    def _publisher(self, key: str) -> Any:
         pub = self._pubs.get(key)
         if pub is None:
-            pub = self._pubs[key] = self.session.declare_publisher(
-                key,
-                encoding=zenoh.Encoding.APPLICATION_JSON,
-                congestion_control=zenoh.CongestionControl.BLOCK,
-            )
+            if self.cache:
+                pub = zenoh_ext.declare_advanced_publisher(
+                    self.session,
+                    key,
+                    encoding=zenoh.Encoding.APPLICATION_JSON,
+                    congestion_control=zenoh.CongestionControl.BLOCK,
+                    cache=zenoh_ext.CacheConfig(max_samples=self.cache),
+                    publisher_detection=True,
+                )
+            else:
+                pub = self.session.declare_publisher(
+                    key,
+                    encoding=zenoh.Encoding.APPLICATION_JSON,
+                    congestion_control=zenoh.CongestionControl.BLOCK,
+                )
+            self._pubs[key] = pub
         return pub
 
     def wait_for_subscribers(self, timeout: float = 10.0) -> bool:
@@ -146,7 +174,7 @@ class Publisher:
         for tok in self._tokens.values():
             tok.undeclare()  # type: ignore[no-untyped-call]
         for pub in self._pubs.values():
-            pub.undeclare()  # type: ignore[no-untyped-call]
+            pub.undeclare()
         self._tokens.clear()
         self._pubs.clear()
         self.session.close()  # type: ignore[no-untyped-call]
@@ -201,10 +229,12 @@ def publish(
     prefix: str = keys.DEFAULT_PREFIX,
     wait_s: float = 10.0,
     stop: threading.Event | None = None,
+    cache: int = 0,
 ) -> int:
-    """Connect, declare, wait for the service's subscription, play, disconnect."""
+    """Connect, declare, wait for the service's subscription, play, disconnect.
+    ``cache``: a publication cache of that many messages per key (:class:`Publisher`)."""
     outgoing = prepare(messages)
-    with Publisher.connect(endpoint, prefix) as pub:
+    with Publisher.connect(endpoint, prefix, cache) as pub:
         pub.declare(outgoing)
         if not pub.wait_for_subscribers(wait_s):
             log.warning("no subscriber on %s after %.0f s: publishing anyway", endpoint, wait_s)
@@ -298,13 +328,27 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="Zenoh endpoint of the service or router (default %(default)s)",
     )
     ap.add_argument("--prefix", default=keys.DEFAULT_PREFIX)
+    ap.add_argument(
+        "--cache",
+        type=int,
+        default=0,
+        metavar="N",
+        help="keep a publication cache of N messages per key (zenoh-ext AdvancedPublisher): "
+        "a worker taking the device over recovers what it missed (default 0: none)",
+    )
     add_arguments(ap)
     args = ap.parse_args(argv)
     if not args.recording.is_file():
         print(f"publish: no such recording: {args.recording}", file=sys.stderr)
         return 2
     t0 = time.perf_counter()
-    n = publish(args.connect, recording.read(args.recording), args.speed, prefix=args.prefix)
+    n = publish(
+        args.connect,
+        recording.read(args.recording),
+        args.speed,
+        prefix=args.prefix,
+        cache=args.cache,
+    )
     print(f"published {n} messages to {args.connect} in {time.perf_counter() - t0:.1f} s")
     return 0
 

@@ -16,10 +16,11 @@ import json
 import logging
 import os
 import shutil
+import zlib
 from collections.abc import Iterable
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, NamedTuple
 
 from backend.analysis import CSV_HEADER, DETAILS_HEADER, analyze, dump_report
 from estimators.params import PipelineParams
@@ -41,6 +42,27 @@ def outputs_dir(recording_path: Path) -> Path:
     name = recording_path.name
     stem = name[: -len(SUFFIX)] if name.endswith(SUFFIX) else recording_path.stem
     return recording_path.with_name(stem)
+
+
+def state_dir(recording_path: Path) -> Path:
+    """``recordings/<id>.jsonl.gz`` → ``recordings/<id>.state`` (pipeline snapshots)."""
+    out = outputs_dir(recording_path)
+    return out.with_name(f"{out.name}.state")
+
+
+class FileMarks(NamedTuple):
+    """Where a session's three files stood at a snapshot."""
+
+    recording: recording.Mark
+    estimates: recording.Mark
+    details: recording.Mark
+
+
+def _write_header(path: Path, header: str) -> recording.Mark:
+    data = (header + "\n").encode()
+    with open(path, "xb") as fh:
+        fh.write(data)
+    return recording.Mark(len(data), zlib.crc32(data), 0)
 
 
 def resolve(data_dir: Path, relpath: str) -> Path:
@@ -65,11 +87,14 @@ class LineSink(list[str]):
     :meth:`flush`, so a session of hours does not hold its CSV in memory and a poll does not
     pay for a file write."""
 
-    def __init__(self, fh: IO[str]) -> None:
+    def __init__(self, fh: IO[str], start: recording.Mark) -> None:
+        """``start``: what the file holds already (its header, or a takeover's copy)."""
         super().__init__()
         self._fh = fh
-        self._n = 0
+        self._n = start.lines
         self._pending: list[str] = []
+        self.written = start.size  # the file's bytes and their CRC-32 (snapshot marks)
+        self.written_crc = start.crc
 
     def extend(self, lines: Iterable[str]) -> None:
         before = len(self._pending)
@@ -82,9 +107,16 @@ class LineSink(list[str]):
 
     def flush(self) -> None:
         if self._pending:
-            self._fh.write("\n".join(self._pending))
-            self._fh.write("\n")
+            text = "\n".join(self._pending) + "\n"
+            data = text.encode()
+            self.written += len(data)
+            self.written_crc = zlib.crc32(data, self.written_crc)
+            self._fh.write(text)
             self._pending.clear()
+
+    def mark(self) -> recording.Mark:
+        """Where the file stands once flushed (call :meth:`flush` first)."""
+        return recording.Mark(self.written, self.written_crc, self._n)
 
     def __len__(self) -> int:
         return self._n
@@ -93,18 +125,28 @@ class LineSink(list[str]):
 class SessionFiles:
     """The files of one running session (opened at start, closed at stop)."""
 
-    def __init__(self, data_dir: Path, session_id: int, staging: str | None = None) -> None:
+    def __init__(
+        self,
+        data_dir: Path,
+        session_id: int,
+        staging: str | None = None,
+        resume: FileMarks | None = None,
+    ) -> None:
         """``staging``: a takeover's files, written beside the session's under this suffix
-        and put in their place by :meth:`promote` once the recording is replayed."""
+        and put in their place by :meth:`promote` once the recording is replayed.
+        ``resume`` (with ``staging``): the staged files begin as copies of the session's
+        files up to these marks (a snapshot's); ``ValueError`` if they do not hold them."""
         self.relpath = recording_relpath(session_id)
         self.recording_path = data_dir / self.relpath
         self.out = outputs_dir(self.recording_path)
+        self.state_dir = state_dir(self.recording_path)
         self.recording_path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
         self._staging = staging
         rec, out = self.recording_path, self.out
         if staging is None:
             _set_aside(rec)
             _set_aside(out)
+            shutil.rmtree(self.state_dir, ignore_errors=True)  # snapshots of a former life
         else:
             rec = rec.with_name(f"{session_id}.{staging}{SUFFIX}")  # still .gz
             out = out.with_name(f"{out.name}.{staging}")
@@ -113,16 +155,33 @@ class SessionFiles:
             rec.unlink(missing_ok=True)
             shutil.rmtree(out, ignore_errors=True)
         out.mkdir(mode=0o700)
+        est_path, det_path = out / "estimates.csv", out / "details.csv"
+        if resume is None:
+            rec_start = None
+            est_start = _write_header(est_path, CSV_HEADER)
+            det_start = _write_header(det_path, DETAILS_HEADER)
+        else:
+            assert staging is not None
+            rec_start = recording.copy_prefix(self.recording_path, rec, resume.recording)
+            est_start = recording.copy_prefix(
+                self.out / "estimates.csv", est_path, resume.estimates
+            )
+            det_start = recording.copy_prefix(self.out / "details.csv", det_path, resume.details)
         # level 1: a third of level 6's CPU for ~20 % more bytes (the live loop is the
         # scarce resource; a recording can be recompressed offline)
-        self.recorder = recording.Writer(rec, "x", compresslevel=1)
-        self._est = open(out / "estimates.csv", "x", encoding="utf-8")  # noqa: SIM115
-        self._det = open(out / "details.csv", "x", encoding="utf-8")  # noqa: SIM115
-        self._est.write(CSV_HEADER + "\n")
-        self._det.write(DETAILS_HEADER + "\n")
-        self.estimates = LineSink(self._est)
-        self.details = LineSink(self._det)
+        self.recorder = recording.Writer(
+            rec, "x" if rec_start is None else "a", compresslevel=1, start=rec_start
+        )
+        self._est = open(est_path, "a", encoding="utf-8")  # noqa: SIM115
+        self._det = open(det_path, "a", encoding="utf-8")  # noqa: SIM115
+        self.estimates = LineSink(self._est, est_start)
+        self.details = LineSink(self._det, det_start)
         self.closed = False
+
+    def marks(self) -> FileMarks:
+        """Flush everything, then where each file stands (for a snapshot)."""
+        self.flush()
+        return FileMarks(self.recorder.mark(), self.estimates.mark(), self.details.mark())
 
     def promote(self) -> None:
         """A takeover's replayed files in place of the previous holder's (one rename each:
@@ -168,6 +227,7 @@ class SessionFiles:
         self._det.close()
         if report is not None:
             (self.out / "report.json").write_text(dump_report(report))
+            shutil.rmtree(self.state_dir, ignore_errors=True)  # the session is complete
 
 
 # --------------------------------------------------------------------------- after a crash

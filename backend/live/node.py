@@ -21,9 +21,11 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import logging
 import threading
 import time
+from collections import Counter, deque
 from collections.abc import Iterator, Sequence
 from datetime import datetime
 from pathlib import Path
@@ -38,7 +40,7 @@ from backend.db.engine import Database
 from backend.db.models import Cycle, Device, Patient, Session
 from backend.db.sessions import record_cycle
 from backend.deps import LiveUnavailable, SessionInfo
-from backend.live import files, lease
+from backend.live import files, lease, recovery, snapshot
 from backend.live.devices import DeviceStats
 from backend.live.ingest import RawMessage
 from backend.live.manager import COMMAND_TIMEOUT_S, LiveManager
@@ -56,6 +58,8 @@ RECONCILE_S = 1.0  # sessions of the held devices compared with the database thi
 SEEN_S = 2.0  # a device not heard from for this long is no candidate for a lease
 LAG_LIMIT_S = 0.1  # the loop this late: falling behind, no new leases
 QUEUE_LIMIT = 0.5  # a device queue this full (fraction): falling behind
+RECOVER_LINES = 8192  # the recording's newest lines compared with a device's cache
+RECOVER_MAX_AGE_S = 30.0  # a device's cached messages older than this are not asked for
 FRESH_START_S = 5.0  # a session started by query this recently may not be committed yet
 
 
@@ -92,16 +96,31 @@ class FeedForwarder:
                 self.dropped += 1
 
 
-def _replay_lines(path: Path) -> Iterator[tuple[str, bytes]]:
-    for line in recording.lines(path):
+def _replay_lines(
+    path: Path, skip: int = 0, last: deque[bytes] | None = None
+) -> Iterator[tuple[str, bytes]]:
+    lines: Iterator[bytes] = recording.lines(path)
+    if last is not None:  # every line (skipped too) passes through it: the newest stay
+        lines = _kept(lines, last)
+    for line in itertools.islice(lines, skip, None):
         key, payload = recording.parse(line)
         if key is not None:
             yield key, bytes(payload)
 
 
-def replay(run: LiveRun, path: Path, prefix: str) -> list[tuple[int, CycleVerdict]]:
+def _kept(lines: Iterator[bytes], last: deque[bytes]) -> Iterator[bytes]:
+    for line in lines:
+        last.append(line)
+        yield line
+
+
+def replay(
+    run: LiveRun, path: Path, prefix: str, skip: int = 0, last: deque[bytes] | None = None
+) -> list[tuple[int, CycleVerdict]]:
     """The recording's complete lines through ``run`` (into its files, as received), with
-    the bookkeeping a live worker does on its outputs; returns the cycles (index, verdict)."""
+    the bookkeeping a live worker does on its outputs; returns the cycles (index, verdict).
+    ``skip``: lines ``run`` has seen already (restored from a snapshot); ``last``: gets the
+    recording's newest lines (as many as it holds)."""
     cycles: list[tuple[int, CycleVerdict]] = []
 
     def absorb(out: Output | None) -> None:
@@ -115,7 +134,7 @@ def replay(run: LiveRun, path: Path, prefix: str) -> list[tuple[int, CycleVerdic
                 cycles.append((run.cycle_index, v))
                 run.cycle_index += 1
 
-    for key, payload in _replay_lines(path):
+    for key, payload in _replay_lines(path, skip, last):
         try:
             kind: str = keys.parse(key, prefix).kind
         except keys.KeyError_:
@@ -126,6 +145,30 @@ def replay(run: LiveRun, path: Path, prefix: str) -> list[tuple[int, CycleVerdic
     if run.fed_since_poll:
         absorb(run.poll())
     return cycles
+
+
+def _cycles_before(run: LiveRun, skip: int) -> list[tuple[int, CycleVerdict]]:
+    """The judged cycles a run restored from a snapshot had (index, verdict), rebuilt from
+    its report's list, for the database rows its previous holder may not have written."""
+    if not skip:
+        return []
+    out = []
+    nan = float("nan")
+    for i, c in enumerate(run.run.cycles[: run.cycle_index]):
+        v = CycleVerdict(
+            start=c["start"],
+            end=c["end"],
+            outside_fraction=c["outside_fraction"],
+            compensatory=c["compensatory"],
+            coverage=c["coverage"],
+            outside_s=nan,
+            max_displacement_m=nan if c["max_displacement_m"] is None else c["max_displacement_m"],
+            mean_displacement_m=nan
+            if c["mean_displacement_m"] is None
+            else c["mean_displacement_m"],
+        )
+        out.append((i, v))
+    return out
 
 
 class WorkerNode(LiveManager):
@@ -148,6 +191,9 @@ class WorkerNode(LiveManager):
         self.paused_steps = 0  # lease steps that found devices past their local deadline
         self.behind = False
         self.takeovers: list[dict[str, Any]] = []  # (device, session, replay seconds)
+        self.snapshots = snapshot.Snapshotter(settings.snapshot_every_s)
+        self.snapshots_rejected: Counter[str] = Counter()  # skipped at takeovers, by reason
+        self.recovered: Counter[str] = Counter()  # messages recovered from devices' caches
         self._token: Any = None
         self._extra: list[Any] = []
         self._feed_pub: zenoh.Publisher | None = None
@@ -256,6 +302,7 @@ class WorkerNode(LiveManager):
             w = super()._worker_for(name)
             if w is not None:
                 w.set_lease(self.held.holder, self.held.epochs[name], lambda: self.held.valid(name))
+                w.snapshots = self.snapshots
         return w
 
     def _device_stats(self, name: str) -> DeviceStats | None:
@@ -471,11 +518,22 @@ class WorkerNode(LiveManager):
         epoch = self.held.epochs[name]
         w.paused = True
         t0 = time.monotonic()
+        history = self._cache_history(name)
+        last: deque[bytes] = deque(maxlen=RECOVER_LINES)
+        recovered = 0
         try:
-            staged = files.SessionFiles(self.settings.data_dir, sid, staging=f"epoch{epoch}")
-            run = LiveRun(name, self.prefix, DeviceStats(name), context, staged)
+            ready = await asyncio.to_thread(
+                snapshot.prepare,
+                self.settings.data_dir,
+                context,
+                name,
+                self.prefix,
+                f"epoch{epoch}",
+                self.snapshots_rejected,
+            )
+            run, staged = ready.run, ready.files
             try:
-                cycles = await asyncio.to_thread(replay, run, path, self.prefix)
+                cycles = await asyncio.to_thread(replay, run, path, self.prefix, ready.skip, last)
             except BaseException:
                 log.exception("device %s: replay of session %s failed", name, sid)
                 staged.close(None)  # the next attempt starts its staged files afresh
@@ -488,15 +546,68 @@ class WorkerNode(LiveManager):
             staged.promote()
             run.stats = w.stats
             w.live = run
+            if history is not None:
+                recovered = await self._recover_gap(w, history, last)
+                history = None
             self._started_at[sid] = time.monotonic()
-            self._store_missing_cycles(w, sid, cycles)
+            self._store_missing_cycles(w, sid, _cycles_before(run, ready.skip) + cycles)
         finally:
+            if history is not None:  # given up: the subscriber goes all the same
+                with contextlib.suppress(Exception):
+                    await asyncio.to_thread(history.close)
             w.paused = False
             self.scheduler.ready(w)
         seconds = time.monotonic() - t0
-        self.takeovers.append({"device": name, "session": sid, "replay_s": round(seconds, 3)})
-        log.warning("device %s: session %s taken over (replayed in %.2f s)", name, sid, seconds)
+        self.takeovers.append(
+            {
+                "device": name,
+                "session": sid,
+                "replay_s": round(seconds, 3),
+                "snapshot": ready.snapshot.name if ready.snapshot else None,
+                "skipped_lines": ready.skip,
+                "recovered": recovered,
+            }
+        )
+        log.warning(
+            "device %s: session %s taken over (%s, %d messages from its cache, in %.2f s)",
+            name,
+            sid,
+            f"from snapshot {ready.snapshot.name}" if ready.snapshot else "whole recording",
+            recovered,
+            seconds,
+        )
         self.changed(name)
+
+    def _cache_history(self, name: str) -> recovery.CacheHistory | None:
+        """The device's publication cache, queried now (none: an empty history)."""
+        zio = self.zio
+        if zio is None or zio.session is None:
+            return None
+        try:
+            return recovery.CacheHistory(zio.session, self.prefix, name, RECOVER_MAX_AGE_S)
+        except Exception:
+            log.warning("device %s: publication cache not queried", name, exc_info=True)
+            return None
+
+    async def _recover_gap(
+        self, w: DeviceWorker, history: recovery.CacheHistory, last: deque[bytes]
+    ) -> int:
+        """The messages of the takeover gap that the device's cache still holds, in front
+        of the device's queue; returns how many."""
+        wait = recovery.MIN_WAIT_S - (time.monotonic() - history.opened)
+        if wait > 0:
+            await asyncio.sleep(wait)
+        samples = await asyncio.to_thread(history.close)
+        recorded = []
+        for line in last:
+            key, payload = recording.parse(line)
+            if key is not None:
+                recorded.append((key, bytes(payload)))
+        missing = recovery.gap(samples, recorded, w.queued_messages(), self.prefix)
+        if missing:
+            w.recover(missing)
+            self.recovered[w.name] += len(missing)
+        return len(missing)
 
     def _store_missing_cycles(
         self, w: DeviceWorker, sid: int, cycles: list[tuple[int, CycleVerdict]]

@@ -31,6 +31,7 @@ from backend.live.files import SessionFiles
 from backend.live.hub import Hub
 from backend.live.ingest import RawMessage
 from backend.live.run import LiveRun, SessionContext, rows_ready
+from backend.live.snapshot import Snapshotter
 from backend.live.store import DbWriter
 from backend.live.zenoh_io import ZenohIO
 from estimators.output import Output
@@ -192,6 +193,7 @@ class DeviceWorker:
         self.fence: tuple[str, str, int] | None = None
         self.paused = False  # a takeover replays the recording first; messages wait
         self._attachment: bytes | None = None  # "<holder>:<epoch>" on each estimate put
+        self.snapshots: Snapshotter | None = None  # a worker process's (backend.live.snapshot)
 
     def set_lease(self, holder: str, epoch: int, alive: Callable[[], bool]) -> None:
         self.alive = alive
@@ -239,6 +241,23 @@ class DeviceWorker:
     def queued(self) -> int:
         return len(self._queue)
 
+    def queued_messages(self) -> list[RawMessage]:
+        return [m for m in self._queue if isinstance(m, RawMessage)]
+
+    def recover(self, msgs: list[RawMessage]) -> None:
+        """Messages recovered from the device's publication cache (a takeover's gap), in
+        front of the queue: they were published before everything waiting in it."""
+        st = self.stats
+        for m in reversed(msgs):
+            st.messages += 1
+            st.bytes += m.size
+            if not self._budget.take(m.size, self._bytes):
+                st.dropped += 1
+                continue
+            self._queue.appendleft(m)
+            self._bytes += m.size
+        self._scheduler.ready(self)
+
     # ------------------------------------------------------------------ a turn
 
     def turn(self) -> None:
@@ -259,6 +278,12 @@ class DeviceWorker:
             self.stats.reject("internal_error")
             if self.internal_errors <= 3:
                 log.exception("device %s: worker error", self.name)
+        if self.snapshots is not None and self.fence is not None:
+            try:
+                self.snapshots.after_turn(self.live, self.fence[2], self.alive)
+            except Exception:  # never the device's data: counted, logged
+                self.snapshots.counts["failed"] += 1
+                log.exception("device %s: snapshot failed", self.name)
         if self._queue:
             self._scheduler.ready(self)
 
