@@ -32,7 +32,7 @@ from sqlalchemy import select
 from sqlalchemy.ext.asyncio import AsyncSession
 
 from backend.db.base import utcnow
-from backend.db.devices import mark_device_offline, touch_device
+from backend.db.devices import mark_device_offline, touch_devices
 from backend.db.engine import Database
 from backend.db.models import Device, Session
 from backend.db.sessions import get_session, stop_session
@@ -258,10 +258,9 @@ class Gateway(LiveManager):
         names = list(names)
 
         async def op(db: AsyncSession) -> None:
-            for name in names:
-                await touch_device(db, name, seen_at=seen)
-                if offline:
-                    await mark_device_offline(db, name)
+            await touch_devices(db, [(name, seen, None) for name in names])
+            for name in names if offline else ():
+                await mark_device_offline(db, name)
 
         self.db.submit(f"registry of {len(names)} device(s)", op)
 
