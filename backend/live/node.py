@@ -147,6 +147,8 @@ class WorkerNode(LiveManager):
         self._resuming: set[str] = set()
         self.lag_s = 0.0
         self.paused_steps = 0  # lease steps that found devices past their local deadline
+        self.late_renewals = 0  # renewals answered late or sent late (logged with both)
+        self._last_renewal = time.monotonic()
         self.behind = False
         self.takeovers: list[dict[str, Any]] = []  # (device, session, replay seconds)
         self._token: Any = None
@@ -328,6 +330,17 @@ class WorkerNode(LiveManager):
         with engine.begin() as conn:
             kept = lease.renew_sync(conn, holder, sent_wall) if mine else {}
             rows = lease.table_sync(conn)  # to try only the free ones: a read, not a write each
+        # what a lost lease needs to be explained: the database's answer late (a writer
+        # holding the lock), or this thread late to ask (the process starved of CPU)
+        took, gap = time.monotonic() - sent_mono, sent_mono - self._last_renewal
+        self._last_renewal = sent_mono
+        if mine and (took > lease.RENEW_S or gap > lease.TTL_S - lease.MARGIN_S):
+            self.late_renewals += 1
+            log.warning(
+                "lease renewal late: answered in %.3f s, %.3f s after the previous one",
+                took,
+                gap,
+            )
         for name in mine:
             epoch = self.held.epochs.get(name)
             if epoch is None:
