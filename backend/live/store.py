@@ -61,6 +61,8 @@ class DbWriter:
         loop = asyncio.new_event_loop()
         database = Database(self.database.url)  # an async engine belongs to one loop
         try:
+            # connected before the first write, which otherwise waits for the connection
+            loop.run_until_complete(self._connect(database))
             while True:
                 first = self._queue.get()  # waits without the GIL
                 if first is None or self._abandon:
@@ -82,6 +84,13 @@ class DbWriter:
         finally:
             loop.run_until_complete(database.dispose())
             loop.close()
+
+    async def _connect(self, database: Database) -> None:
+        try:
+            async with database.engine.connect():
+                pass
+        except Exception:
+            log.exception("database not reached (the writes will try again)")
 
     async def _write(self, database: Database, batch: list[tuple[str, Op, Fence | None]]) -> None:
         from backend.live.lease import holds
