@@ -117,14 +117,18 @@ def subscriber(args: argparse.Namespace) -> None:
 
     zrecv: dict[str, list[tuple[float, float]]] = {}
     wrecv: dict[str, list[tuple[float, float]]] = {}
+    by_holder: dict[str, int] = {}  # estimate rows by publishing worker (the attachment)
     lock = threading.Lock()
 
     def on_estimate(sample: zenoh.Sample) -> None:
         now = time.time()
         device = str(sample.key_expr).split("/")[1]
         rows = orjson.loads(sample.payload.to_bytes())
+        att = sample.attachment
+        holder = att.to_bytes().decode().rsplit(":", 1)[0] if att is not None else ""
         with lock:
             zrecv.setdefault(device, []).extend((t, now) for t in rows["t"])
+            by_holder[holder] = by_holder.get(holder, 0) + len(rows["t"])
 
     session = zenoh.open(make_config(connect=args.endpoint, mode="peer"))
     sub = session.declare_subscriber("rehab/*/estimate", on_estimate)
@@ -154,7 +158,9 @@ def subscriber(args: argparse.Namespace) -> None:
     sub.undeclare()  # type: ignore[no-untyped-call]
     session.close()  # type: ignore[no-untyped-call]
     with lock:
-        Path(args.out).write_text(json.dumps({"zenoh": zrecv, "websocket": wrecv}))
+        Path(args.out).write_text(
+            json.dumps({"zenoh": zrecv, "websocket": wrecv, "by_holder": by_holder})
+        )
     print("done", flush=True)
 
 
@@ -420,6 +426,24 @@ def run(
         zl, z_sent, z_recv = latencies(pubres["sent"], subres["zenoh"], t_start, WARMUP_S)
         wl, _, w_recv = latencies(pubres["sent"], subres["websocket"], t_start, WARMUP_S)
         zl_all, _, _ = latencies(pubres["sent"], subres["zenoh"], t_start, 0.0)
+        rejected: dict[str, int] = {}
+        for d in devices.values():
+            for reason, k in (
+                (d.get("stats") or {}).get("ingest", {}).get("rejected") or {}
+            ).items():
+                rejected[reason] = rejected.get(reason, 0) + k
+        # CPU per device-second of each worker: its CPU over the device-seconds it answered
+        # (its share of the estimate rows, told apart by the holder:epoch attachment; a
+        # holder id is <host>-<pid>-<random>)
+        rows_by_pid = {
+            int(h.rsplit("-", 2)[1]): k for h, k in subres["by_holder"].items() if h.count("-") >= 2
+        }
+        total_rows = sum(subres["by_holder"].values()) or 1
+        per_worker = {
+            f"worker {p}": round(1000 * c / (rows_by_pid[p] / total_rows * n * wall), 2)
+            for p, c in by_proc.items()
+            if p != service.pid and rows_by_pid.get(p)
+        }
         steady = [s for s in samples if s[0] - t_start >= WARMUP_S]
         cpu_steady = (
             (steady[-1][1] - steady[0][1]) / (steady[-1][0] - steady[0][0])
@@ -465,6 +489,11 @@ def run(
             "worker_cpu_ms_per_device_s": round(1000 * worker_cpu / wall / n, 2)
             if len(pids) > 1
             else None,
+            "worker_cpu_ms_per_device_s_by_worker": per_worker,
+            "devices_by_worker": {
+                f"worker {p}": round(k / total_rows * n, 1) for p, k in rows_by_pid.items()
+            },
+            "rejected": rejected,
         }
         result["meets_target"] = bool(
             result["messages_lost"] == 0
@@ -535,7 +564,9 @@ def report(r: dict[str, Any]) -> str:
         f" {'OK' if r['meets_target'] else 'FAILS p99 <= 50 ms'}"
         + (
             f"; {r['workers']} workers, CPU by process {r['cpu_percent_by_process']}, "
-            f"{r['worker_cpu_ms_per_device_s']} ms of worker CPU per device-second"
+            f"{r['worker_cpu_ms_per_device_s']} ms of worker CPU per device-second "
+            f"(by worker {r['worker_cpu_ms_per_device_s_by_worker']}, devices "
+            f"{r['devices_by_worker']}); rejected {r['rejected']}"
             if r.get("workers")
             else ""
         )

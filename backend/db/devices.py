@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from datetime import datetime, timedelta
 from typing import Any
 
@@ -29,19 +30,39 @@ async def touch_device(
     (rates, rejected-message counters, ...) replaces the stored snapshot when given. Meant to
     be called about once a second per device, not per message.
     """
-    now = seen_at or utcnow()
-    values: dict[str, Any] = {"name": name, "first_seen": now, "last_seen": now, "status": "online"}
+    await touch_devices(db, [(name, seen_at or utcnow(), stats)])
+
+
+async def touch_devices(
+    db: AsyncSession, rows: Sequence[tuple[str, datetime, dict[str, Any] | None]]
+) -> None:
+    """:func:`touch_device` of many devices ``(name, seen_at, stats)`` in one statement: a
+    live writer holds the database's write lock for one round trip, not one per device.
+    ``stats`` is given for every row or for none."""
+    by_name = {name: (seen, stats) for name, seen, stats in rows}  # one row per name
+    if not by_name:
+        return
+    with_stats = next(iter(by_name.values()))[1] is not None
+    values = [
+        {
+            "name": name,
+            "first_seen": seen,
+            "last_seen": seen,
+            "status": "online",
+            **({"stats": stats} if with_stats else {}),
+        }
+        for name, (seen, stats) in by_name.items()
+    ]
     pg = db.get_bind().dialect.name == "postgresql"
-    stmt = (pg_insert if pg else sqlite_insert)(Device).values(**values)
+    stmt = (pg_insert if pg else sqlite_insert)(Device).values(values)
     # never back in time: writers queue their snapshots, so an older one can land last
     newest = func.greatest if pg else func.max  # SQLite: its two-argument max() (ISO text)
     changes: dict[str, Any] = {
         "last_seen": newest(Device.last_seen, stmt.excluded.last_seen),
         "status": "online",
     }
-    if stats is not None:
-        values["stats"] = changes["stats"] = stats
-        stmt = stmt.values(stats=stats)
+    if with_stats:
+        changes["stats"] = stmt.excluded.stats
     await db.execute(stmt.on_conflict_do_update(index_elements=["name"], set_=changes))
 
 

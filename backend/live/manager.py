@@ -25,7 +25,7 @@ from backend.db.devices import (
     mark_device_offline,
     registered_devices,
     remove_device,
-    touch_device,
+    touch_devices,
 )
 from backend.db.engine import Database
 from backend.db.models import Cycle, Patient, Session
@@ -287,13 +287,12 @@ class LiveManager:
         for n in names:
             st = self.stats[n]
             seen = now if st.token or st.last_seen is None else st.last_seen
-            snapshot.append((n, self._db_stats(n), datetime.fromtimestamp(seen, UTC)))
+            snapshot.append((n, datetime.fromtimestamp(seen, UTC), self._db_stats(n)))
 
         async def op(db: AsyncSession) -> None:
-            for name, stats, seen_at in snapshot:
-                await touch_device(db, name, seen_at=seen_at, stats=stats)
-                if offline:
-                    await mark_device_offline(db, name)
+            await touch_devices(db, snapshot)
+            for name, _, _ in snapshot if offline else ():
+                await mark_device_offline(db, name)
 
         self.db.submit(f"registry of {len(names)} device(s)", op)
 

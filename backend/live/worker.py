@@ -264,7 +264,14 @@ class DeviceWorker:
         if self.closed or self.paused:
             return
         if not self.alive():  # the lease is no longer surely ours: drop, never process
-            self._queue = deque(c for c in self._queue if isinstance(c, Command))
+            kept: deque[RawMessage | Command] = deque(
+                c for c in self._queue if isinstance(c, Command)
+            )
+            if len(kept) < len(self._queue):  # a gap in the recording: counted, never silent
+                n = len(self._queue) - len(kept)
+                self.stats.rejected["lease_paused"] = self.stats.rejected.get("lease_paused", 0) + n
+            self._budget.give(self._bytes)
+            self._queue = kept
             self._bytes = 0
             return
         try:

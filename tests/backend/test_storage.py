@@ -18,7 +18,7 @@ from sqlalchemy import Connection, select
 from backend.app import create_app
 from backend.db import Database
 from backend.db.base import Base, utcnow
-from backend.db.devices import mark_device_offline, touch_device
+from backend.db.devices import mark_device_offline, touch_device, touch_devices
 from backend.db.engine import alembic_config
 from backend.db.models import AuditLog, Device
 from backend.db.sessions import active_session, record_cycle, store_nominal_shoulder
@@ -167,6 +167,29 @@ async def test_device_registry(
     assert device is not None and device.last_seen.tzinfo is not None
     assert device.last_seen.utcoffset() == timedelta(0)
     assert abs(device.last_seen - datetime.now(UTC)) < timedelta(minutes=1)
+
+
+async def test_device_registry_in_one_statement(state: AppState) -> None:
+    """The live writers' form: many devices per upsert, stats replaced per device, a name
+    twice kept once, last_seen never back; without stats the stored ones stay."""
+    t = utcnow()
+    async with state.database.transaction() as db:
+        await touch_devices(
+            db,
+            [
+                ("rig-a", t, {"n": 1}),
+                ("rig-b", t, {"n": 2}),
+                ("rig-a", t, {"n": 3}),
+            ],
+        )
+    async with state.database.transaction() as db:
+        await touch_devices(db, [("rig-a", t - timedelta(seconds=5), None), ("rig-c", t, None)])
+    async with state.database.session() as db:
+        rows = (await db.execute(select(Device.name, Device.last_seen, Device.stats))).all()
+    got = {name: (seen, stats) for name, seen, stats in rows}
+    assert set(got) == {"rig-a", "rig-b", "rig-c"}
+    assert got["rig-a"][1] == {"n": 3} and got["rig-b"][1] == {"n": 2}
+    assert got["rig-a"][0] == got["rig-b"][0] == got["rig-c"][0]  # not moved back
 
 
 async def _patient_and_device(

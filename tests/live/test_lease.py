@@ -99,3 +99,69 @@ def test_rendezvous_spreads_and_agrees() -> None:
     for i in range(20):  # every worker computes the same order
         ranks = sorted(lease.rank(f"dev{i}", w, workers) for w in workers)
         assert ranks == [0, 1, 2]
+
+
+@pytest.mark.anyio
+async def test_renewals_hold_while_a_busy_loop_writes(any_db_url: str) -> None:
+    """A worker's loop busy with pipelines (10 ms rounds) while its writer stores the
+    registry of 25 devices each second: the lease thread's renewals, which need the
+    database's write lock (SQLite) or the fenced rows (PostgreSQL), never wait long. The
+    writer's transactions used to run on that loop, each statement waiting for the loop to
+    come round, and held renewals back past the lease's expiry (the 50-device churn)."""
+    import threading
+    import time
+
+    from backend.db.devices import touch_device
+
+    db = Database(any_db_url)
+    await db.migrate()
+    engine = lease.sync_engine(any_db_url)
+    writer = DbWriter(db)
+    writer.start()
+    stop = threading.Event()
+    rtts: list[float] = []
+    kept: list[dict[str, int]] = []
+    try:
+        with engine.begin() as conn:
+            assert lease.acquire_sync(conn, "d1", "A", time.time()) == 1
+
+        def renewals() -> None:
+            while not stop.wait(lease.RENEW_S):
+                t0 = time.monotonic()
+                with engine.begin() as conn:
+                    kept.append(lease.renew_sync(conn, "A", time.time()))
+                rtts.append(time.monotonic() - t0)
+
+        thread = threading.Thread(target=renewals)
+        thread.start()
+        names = [f"dev{i:02d}" for i in range(25)]
+        end = time.monotonic() + 3.0
+        next_write = 0.0
+        while time.monotonic() < end:
+            if time.monotonic() >= next_write:
+                next_write = time.monotonic() + 1.0
+                for n in names:  # one op per device, fenced like a worker's cycles
+
+                    async def op(s: object, n: str = n) -> None:
+                        await touch_device(s, n, stats={"rates_hz": {"imu": 100.0}})  # type: ignore[arg-type]
+
+                    writer.submit(f"registry of {n}", op, fence=("d1", "A", 1))
+            time.sleep(0.01)  # a scheduling round of the pipelines, holding the loop
+            await asyncio.sleep(0)
+        stop.set()
+        await asyncio.to_thread(thread.join)
+        await writer.close()
+        assert writer.failed == 0 and writer.fenced == 0
+        # far inside the lease's self-expiry margin (TTL − MARGIN − RENEW = 0.7 s)
+        assert max(rtts) < 0.25, sorted(rtts)[-5:]
+        assert len(rtts) >= 8
+        assert all(k == {"d1": 1} for k in kept), kept  # never expired
+        async with db.session() as s:
+            from backend.db.models import Device
+
+            assert len((await s.execute(lease.select(Device.name))).all()) == 25
+    finally:
+        stop.set()
+        await writer.close()
+        engine.dispose()
+        await db.dispose()
