@@ -136,26 +136,33 @@ def _acc_at(al: Any, om: Any, r: Any, out: Any) -> None:
 
 
 @jit_inline
+def _cx(a0: float, a1: float, a2: float, b0: float, b1: float, b2: float) -> Any:
+    """``a × b`` on scalars (no array: the hot loops below allocate nothing)."""
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
+@jit_inline
 def _dacc(dal: Any, dom: Any, al: Any, om: Any, r: Any, dr: Any, out: Any) -> None:
-    """``out += ∂(α × r + ω × (ω × r))`` for (15, 3) ∂α, ∂ω and (5, 3) ∂r (θ rows only)."""
-    omr = np.empty(3)
-    cross(om, r, omr)
-    t1 = np.empty(3)
-    t2 = np.empty(3)
+    """``out += ∂(α × r + ω × (ω × r))`` for (15, 3) ∂α, ∂ω and (5, 3) ∂r (θ rows only):
+    ``∂α × r + ∂ω × (ω × r) + ω × (∂ω × r)``, plus ``α × ∂r + ω × (ω × ∂r)``."""
+    r0, r1, r2 = r[0], r[1], r[2]
+    o0, o1, o2 = om[0], om[1], om[2]
+    q0, q1, q2 = _cx(o0, o1, o2, r0, r1, r2)
     for i in range(15):
-        cross(dal[i], r, t1)
-        out[i] += t1
-        cross(dom[i], omr, t1)
-        out[i] += t1
-        cross(dom[i], r, t1)
-        cross(om, t1, t2)
-        out[i] += t2
+        a0, a1, a2 = _cx(dal[i, 0], dal[i, 1], dal[i, 2], r0, r1, r2)
+        b0, b1, b2 = _cx(dom[i, 0], dom[i, 1], dom[i, 2], q0, q1, q2)
+        c0, c1, c2 = _cx(dom[i, 0], dom[i, 1], dom[i, 2], r0, r1, r2)
+        e0, e1, e2 = _cx(o0, o1, o2, c0, c1, c2)
+        out[i, 0] += a0 + b0 + e0
+        out[i, 1] += a1 + b1 + e1
+        out[i, 2] += a2 + b2 + e2
     for m in range(5):
-        cross(al, dr[m], t1)
-        out[10 + m] += t1
-        cross(om, dr[m], t1)
-        cross(om, t1, t2)
-        out[10 + m] += t2
+        a0, a1, a2 = _cx(al[0], al[1], al[2], dr[m, 0], dr[m, 1], dr[m, 2])
+        c0, c1, c2 = _cx(o0, o1, o2, dr[m, 0], dr[m, 1], dr[m, 2])
+        e0, e1, e2 = _cx(o0, o1, o2, c0, c1, c2)
+        out[10 + m, 0] += a0 + e0
+        out[10 + m, 1] += a1 + e1
+        out[10 + m, 2] += a2 + e2
 
 
 @jit
@@ -230,11 +237,8 @@ def sensors(
     ax_wf = np.zeros((5, 3))
     ax_vu = np.zeros((5, 3))
     ax_vf = np.zeros((5, 3))
-    t1 = np.empty(3)
-    t2 = np.empty(3)
-    t3 = np.empty(3)
     for m in range(5):
-        am = a[m]
+        a0, a1, a2 = a[m, 0], a[m, 1], a[m, 2]
         up = m <= 2
         for seg in range(2):
             if seg == 0 and not up:
@@ -243,25 +247,30 @@ def sensors(
             al = al_u if seg == 0 else al_f
             dw = dw_u if seg == 0 else dw_f
             dal = dal_u if seg == 0 else dal_f
-            dd = om - w[m]
-            dw[5 + m] = am
-            cross(am, dd, t1)  # a × Δω
-            dw[10 + m] = t1
-            dal[m] = am
-            dal[5 + m] = wxa[m] + t1
-            cross(w[m], t1, t3)  # ω_m × (a × Δω)
-            cross(w[m], dd, t2)
-            cross(am, (al - alpha[m]) - t2, t1)
-            dal[10 + m] = t1 + t3
-        cross(am, d_f, ddf[m])
-        cross(am, d_w, dwr[m])
-        cross(am, w_f, ax_wf[m])
-        cross(am, v_af, ax_vf[m])
+            n0, n1, n2 = om[0] - w[m, 0], om[1] - w[m, 1], om[2] - w[m, 2]  # Δω
+            c0, c1, c2 = _cx(a0, a1, a2, n0, n1, n2)  # a × Δω
+            e0, e1, e2 = _cx(w[m, 0], w[m, 1], w[m, 2], c0, c1, c2)  # ω_m × (a × Δω)
+            f0, f1, f2 = _cx(w[m, 0], w[m, 1], w[m, 2], n0, n1, n2)  # ω_m × Δω
+            g0, g1, g2 = _cx(
+                a0,
+                a1,
+                a2,
+                al[0] - alpha[m, 0] - f0,
+                al[1] - alpha[m, 1] - f1,
+                al[2] - alpha[m, 2] - f2,
+            )
+            dw[5 + m, 0], dw[5 + m, 1], dw[5 + m, 2] = a0, a1, a2
+            dw[10 + m, 0], dw[10 + m, 1], dw[10 + m, 2] = c0, c1, c2
+            dal[m, 0], dal[m, 1], dal[m, 2] = a0, a1, a2
+            dal[5 + m, 0] = wxa[m, 0] + c0
+            dal[5 + m, 1] = wxa[m, 1] + c1
+            dal[5 + m, 2] = wxa[m, 2] + c2
+            dal[10 + m, 0], dal[10 + m, 1], dal[10 + m, 2] = g0 + e0, g1 + e1, g2 + e2
+        for dst_, v in ((ddf, d_f), (dwr, d_w), (ax_wf, w_f), (ax_vf, v_af)):
+            dst_[m, 0], dst_[m, 1], dst_[m, 2] = _cx(a0, a1, a2, v[0], v[1], v[2])
         if up:
-            cross(am, elbow, de[m])
-            cross(am, d_u, ddu[m])
-            cross(am, w_u, ax_wu[m])
-            cross(am, v_au, ax_vu[m])
+            for dst_, v in ((de, elbow), (ddu, d_u), (ax_wu, w_u), (ax_vu, v_au)):
+                dst_[m, 0], dst_[m, 1], dst_[m, 2] = _cx(a0, a1, a2, v[0], v[1], v[2])
     g_u = dw_u.copy()
     g_f = dw_f.copy()
     a_u = np.zeros((15, 3))
@@ -378,27 +387,37 @@ def predict(
         t, d = i_th[c], (i_d[c] if order >= 1 else -1)
         dd = i_dd[c] if order == 2 else -1
         if d >= 0:
-            xn[t] += F[t, d] * x[d]
-            Pn[t, :] += F[t, d] * P[d, :]
+            f1 = F[t, d]
+            xn[t] += f1 * x[d]
+            for k in range(n):
+                Pn[t, k] += f1 * P[d, k]
         if dd >= 0:
-            xn[t] += F[t, dd] * x[dd]
-            xn[d] += F[d, dd] * x[dd]
-            Pn[t, :] += F[t, dd] * P[dd, :]
-            Pn[d, :] += F[d, dd] * P[dd, :]
-    for k in gm:
-        xn[k] *= F[k, k]
-        Pn[k, :] *= F[k, k]
+            f2, f3 = F[t, dd], F[d, dd]
+            xn[t] += f2 * x[dd]
+            xn[d] += f3 * x[dd]
+            for k in range(n):
+                Pn[t, k] += f2 * P[dd, k]
+                Pn[d, k] += f3 * P[dd, k]
+    for g in gm:
+        xn[g] *= F[g, g]
+        for k in range(n):
+            Pn[g, k] *= F[g, g]
     Q = Pn.copy()  # columns: (F P) Fᵀ
     for c in range(i_th.shape[0]):
         t, d = i_th[c], (i_d[c] if order >= 1 else -1)
         dd = i_dd[c] if order == 2 else -1
         if d >= 0:
-            Q[:, t] += F[t, d] * Pn[:, d]
+            f1 = F[t, d]
+            for k in range(n):
+                Q[k, t] += f1 * Pn[k, d]
         if dd >= 0:
-            Q[:, t] += F[t, dd] * Pn[:, dd]
-            Q[:, d] += F[d, dd] * Pn[:, dd]
-    for k in gm:
-        Q[:, k] *= F[k, k]
+            f2, f3 = F[t, dd], F[d, dd]
+            for k in range(n):
+                Q[k, t] += f2 * Pn[k, dd]
+                Q[k, d] += f3 * Pn[k, dd]
+    for g in gm:
+        for k in range(n):
+            Q[k, g] *= F[g, g]
     for k in range(n):
         Q[k, k] += q[k]
     return xn, Q
@@ -493,18 +512,69 @@ def stack(z: Any, have: Any, r: Any) -> Any:
     return zv, rv
 
 
+@jit_inline
+def _cholesky(S: Any) -> Any:
+    """Lower Cholesky factor of a small SPD matrix, written out (LAPACK's call and copies cost
+    more than the arithmetic here); raises on a matrix that is not positive definite."""
+    m = S.shape[0]
+    L = np.zeros((m, m))
+    for j in range(m):
+        acc = S[j, j]
+        for k in range(j):
+            acc -= L[j, k] * L[j, k]
+        if not acc > 0.0:
+            raise np.linalg.LinAlgError("innovation covariance not positive definite")
+        d = math.sqrt(acc)
+        L[j, j] = d
+        for i in range(j + 1, m):
+            acc = S[i, j]
+            for k in range(j):
+                acc -= L[i, k] * L[j, k]
+            L[i, j] = acc / d
+    return L
+
+
+@jit_inline
+def _forward(L: Any, B: Any) -> Any:
+    """``L⁻¹ B`` for lower-triangular ``L`` (m, m) and ``B`` (m, k)."""
+    m, k = B.shape
+    X = B.copy()
+    for i in range(m):
+        for c in range(k):
+            acc = X[i, c]
+            for t in range(i):
+                acc -= L[i, t] * X[t, c]
+            X[i, c] = acc / L[i, i]
+    return X
+
+
 @jit
 def gain_update(x: Any, P: Any, Pxz: Any, S: Any, y: Any) -> Any:
     """``x + K y``, ``P − K S Kᵀ`` (symmetrised) and NIS per row, with ``K = Pxz S⁻¹`` through
     the Cholesky factor ``S = L Lᵀ``: ``U = L⁻¹ Pxzᵀ``, ``v = L⁻¹ y``, ``K y = Uᵀ v``,
     ``K S Kᵀ = Uᵀ U``."""
-    L = np.linalg.cholesky(S)
-    U = np.linalg.solve(L, np.ascontiguousarray(Pxz.T))
-    v = np.linalg.solve(L, y)
-    xn = x + U.T @ v
-    Pn = P - U.T @ U
-    Pn = 0.5 * (Pn + Pn.T)
-    return xn, Pn, (v @ v) / max(y.shape[0], 1)
+    L = _cholesky(S)
+    U = _forward(L, np.ascontiguousarray(Pxz.T))
+    v = _forward(L, y.reshape((-1, 1)).copy())[:, 0].copy()
+    m, n = U.shape
+    xn = x.copy()
+    Pn = P.copy()
+    for i in range(n):
+        acc = 0.0
+        for r in range(m):
+            acc += U[r, i] * v[r]
+        xn[i] += acc
+        for j in range(i, n):
+            acc = 0.0
+            for r in range(m):
+                acc += U[r, i] * U[r, j]
+            val = 0.5 * (P[i, j] + P[j, i]) - acc
+            Pn[i, j] = val
+            Pn[j, i] = val
+    nis = 0.0
+    for r in range(m):
+        nis += v[r] * v[r]
+    return xn, Pn, nis / max(m, 1)
 
 
 @jit
