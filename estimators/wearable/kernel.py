@@ -739,15 +739,17 @@ def ekf_step_packed(x: Any, P: Any, ts: float, z: Any, have: Any, ia: Any, fa: A
 
 @jit
 def emit(x: Any, P: Any, ia: Any, fa: Any, vertical_rad: float) -> Any:
-    """:func:`outputs` as one array (17,): θ (5), σ (5) rad, elbow, wrist (3) m, the σ of the
-    turn about the vertical from P (rad)."""
+    """:func:`outputs` as one array (17,): θ (5), σ (5) in degrees, elbow, wrist (3) m, the σ
+    of the turn about the vertical from P (degrees)."""
     th, std, elbow, wrist, vert = outputs(
         x, P, ia[_IA_THETA:_IA_BIAS].reshape((3, 5)), fa[0], fa[1], vertical_rad
     )
     out = np.empty(17)
-    out[0:5] = th
-    out[5:10] = std
+    deg = 180.0 / math.pi
+    for j in range(5):
+        out[j] = th[j] * deg
+        out[5 + j] = std[j] * deg
     out[10:13] = elbow
     out[13:16] = wrist
-    out[16] = vert
+    out[16] = vert * deg
     return out

@@ -350,12 +350,12 @@ def _emit(
     o = kernel.emit(state.x, state.P, *model.packed, math.radians(state.vertical_deg))
     # the whole arm's turn about the vertical (unobservable without a camera, carried by the
     # gyros alone, contract §8 "Start"): the EKF's σ of it and the drift bound
-    vert = math.hypot(math.degrees(float(o[16])), state.vertical_deg)
+    vert = math.hypot(float(o[16]), state.vertical_deg)
     elbow, wrist = o[10:13], o[13:16]
     if params.side == "left":
         elbow, wrist = mirror_vectors(elbow), mirror_vectors(wrist)
-    deg = np.degrees(o[0:5])
-    sdeg = np.degrees(o[5:10])
+    deg = o[0:5]
+    sdeg = o[5:10]
     if not model.use_forearm or flags & FOREARM_MISSING:
         deg[3:] = np.nan
         sdeg[3:] = np.nan
