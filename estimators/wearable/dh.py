@@ -29,12 +29,13 @@ beyond joint m about ``a_m``).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import NamedTuple, TypeAlias
 
 import numpy as np
 from numpy.typing import NDArray
+
+from estimators.wearable import kernel
 
 F64: TypeAlias = NDArray[np.float64]
 I64: TypeAlias = NDArray[np.intp]
@@ -52,7 +53,7 @@ FORE = 4  # index of the last joint of the forearm (θ5)
 _HALF_PI = 0.5 * np.pi
 
 # R_S0: columns are frame 0's axes in S (x down, y forward, z = −y_S).
-R_S0: F64 = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]])
+R_S0: F64 = kernel.R_S0
 
 
 def dh(gamma: float, lam: float, beta: float, delta: float) -> tuple[F64, F64]:
@@ -82,9 +83,7 @@ def dh_table(theta: F64, upper_arm_m: float, forearm_m: float) -> list[tuple[flo
 
 
 # Frame 3 of the table in U's axes (x3 = −y_U, y3 = x_U, z3 = z_U); frame 6 is F itself.
-R_U3: F64 = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
-_JOINT_ROWS = (0, 1, 2, 4, 5)  # the table rows whose γ is a joint angle
-_RX = {b: dh(0.0, 0.0, b, 0.0)[0] for b in (0.0, _HALF_PI, -_HALF_PI)}
+R_U3: F64 = kernel.R_U3
 
 
 class Pose(NamedTuple):
@@ -99,23 +98,12 @@ class Pose(NamedTuple):
 
 
 def pose(theta: F64, upper_arm_m: float, forearm_m: float) -> Pose:
-    """Forward kinematics of the DH chain (eqs. 10, 11) for ``θ`` (5,) rad."""
-    rot = R_S0
-    pos = np.zeros(3)
-    axes = np.empty((5, 3))
-    frames: list[tuple[F64, F64]] = []
-    j = 0
-    for i, (gamma, lam, beta, _) in enumerate(dh_table(theta, upper_arm_m, forearm_m)):
-        if i in _JOINT_ROWS:
-            axes[j] = rot[:, 2]
-            j += 1
-        if lam:  # eq. 11: the rows here translate along z only (δ = 0)
-            pos = pos + lam * rot[:, 2]
-        cg, sg = math.cos(gamma), math.sin(gamma)
-        rot = rot @ (np.array([[cg, -sg, 0.0], [sg, cg, 0.0], [0.0, 0.0, 1.0]]) @ _RX[beta])
-        frames.append((rot, pos))
-    r_su = frames[2][0] @ R_U3.T
-    return Pose(axes, r_su, frames[5][0], frames[3][1], frames[6][1])
+    """Forward kinematics of the DH chain (eqs. 10, 11) for ``θ`` (5,) rad (the rows of
+    :func:`dh_table`, evaluated by :func:`estimators.wearable.kernel.pose`)."""
+    axes, r_su, r_sf, elbow, wrist = kernel.pose(
+        np.asarray(theta, dtype=np.float64), float(upper_arm_m), float(forearm_m)
+    )
+    return Pose(axes, r_su, r_sf, elbow, wrist)
 
 
 def rot_x(a: float) -> F64:
@@ -222,17 +210,6 @@ class Sensors(NamedTuple):
     J_wrist: F64 | None
 
 
-_GZ = np.array([0.0, 0.0, G])
-_MASK_U = np.array([1.0, 1.0, 1.0, 0.0, 0.0])[:, None]
-
-
-def _cross(a: F64, b: F64) -> F64:
-    """Row-wise cross product (numpy's np.cross is slow for small arrays)."""
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0), axis=-1)
-
-
 def sensors(
     theta: F64,
     dtheta: F64,
@@ -245,110 +222,24 @@ def sensors(
 
     ``theta``, ``dtheta``, ``ddtheta`` (5,) in rad, rad/s, rad/s². ``body=False`` leaves the
     body acceleration out of the accelerometers (the inclinometer model of models B, C).
+    The arithmetic is :func:`estimators.wearable.kernel.sensors` (compiled).
     """
-    ps = pose(theta, geo.upper_arm_m, geo.forearm_m)
-    a = ps.axes
-    # eq. 12, 13 in S: partial angular velocities and accelerations after each joint
-    wj = a * dtheta[:, None]
-    w = np.cumsum(wj, axis=0)
-    wprev = np.vstack((np.zeros((1, 3)), w[:-1]))
-    wxa = _cross(wprev, a)
-    alpha = np.cumsum(a * ddtheta[:, None] + wxa * dtheta[:, None], axis=0)
-    w_u, w_f, al_u, al_f = w[UPPER], w[FORE], alpha[UPPER], alpha[FORE]
-    elbow = ps.elbow
-    d_u = ps.R_SU @ geo.r_u
-    d_f = ps.R_SF @ geo.r_f
-    d_w = ps.wrist - elbow
-    R_SIu = ps.R_SU @ geo.R_UI
-    R_SIf = ps.R_SF @ geo.R_FI
-
-    def acc_at(al: F64, om: F64, r: F64) -> F64:
-        return _cross1(al, r) + _cross1(om, _cross1(om, r))  # eq. 14 with a fixed origin term
-
-    acc_e = acc_at(al_u, w_u, elbow)
-    pdd_u = acc_at(al_u, w_u, d_u)
-    pdd_f = acc_e + acc_at(al_f, w_f, d_f)
-    v_au = (pdd_u if body else 0.0) + _GZ  # eqs. 17, 18: specific force = gravity + body acc
-    v_af = (pdd_f if body else 0.0) + _GZ
-    gyr_u, acc_u = w_u @ R_SIu, v_au @ R_SIu
-    gyr_f, acc_f = w_f @ R_SIf, v_af @ R_SIf
-    wrist = ps.wrist
+    f = np.float64
+    vals, jac = kernel.sensors(
+        np.asarray(theta, dtype=f),
+        np.asarray(dtheta, dtype=f),
+        np.asarray(ddtheta, dtype=f),
+        float(geo.upper_arm_m),
+        float(geo.forearm_m),
+        np.asarray(geo.r_u, dtype=f),
+        np.ascontiguousarray(geo.R_UI, dtype=f),
+        np.asarray(geo.r_f, dtype=f),
+        np.ascontiguousarray(geo.R_FI, dtype=f),
+        body,
+        jacobian,
+    )
+    gu, au, gf, af, e, w = (vals[k] for k in range(6))
     if not jacobian:
-        return Sensors(gyr_u, acc_u, gyr_f, acc_f, elbow, wrist, None, None, None, None, None, None)
-
-    # Derivatives as (15, 3) arrays: rows 0–4 ∂/∂θ̈_m, 5–9 ∂/∂θ̇_m, 10–14 ∂/∂θ_m.
-    # ∂/∂θ_m: everything beyond joint m turns about a_m.
-    mask_u = _MASK_U
-    du, df = w_u - w, w_f - w
-    zero = np.zeros((5, 3))
-    dw_u = np.vstack((zero, a * mask_u, _cross(a, du) * mask_u))
-    dw_f = np.vstack((zero, a, _cross(a, df)))
-    dal_u = np.vstack(
-        (
-            a,
-            wxa + _cross(a, du),
-            _cross(a, (al_u - alpha) - _cross(w, du)) + _cross(w, _cross(a, du)),
-        )
-    ) * np.vstack((mask_u, mask_u, mask_u))
-    dal_f = np.vstack(
-        (
-            a,
-            wxa + _cross(a, df),
-            _cross(a, (al_f - alpha) - _cross(w, df)) + _cross(w, _cross(a, df)),
-        )
-    )
-    # a_m × v for single vectors v, as one product with the stacked axes
-    cross_a = a @ _skew_stack(ps.elbow, d_u, d_f, d_w, w_u, w_f, v_au, v_af)
-    de, ddu, ddf, dwr, ax_wu, ax_wf, ax_vu, ax_vf = (
-        cross_a[:, 3 * k : 3 * k + 3] for k in range(8)
-    )
-    de, ddu, ax_wu, ax_vu = de * mask_u, ddu * mask_u, ax_wu * mask_u, ax_vu * mask_u
-    zeros10 = np.zeros((10, 3))
-
-    def dacc(dal: F64, dom: F64, al: F64, om: F64, r: F64, dr: F64) -> F64:
-        """∂(α × r + ω × (ω × r)) for (15, 3) ∂α, ∂ω and ∂r (only θ rows move r)."""
-        k_r, k_om = _skew(r), _skew(om)
-        out = dal @ k_r + dom @ _skew(_cross1(om, r)) - (dom @ k_r) @ k_om
-        out[10:] += -(dr @ _skew(al)) + (dr @ k_om) @ k_om
-        return out
-
-    # gyros: z = R_SI^T ω, ∂z/∂θ_m = R_SI^T (∂ω − a_m × ω) for joints before the IMU
-    g_u = dw_u.copy()
-    g_u[10:] -= ax_wu
-    g_f = dw_f.copy()
-    g_f[10:] -= ax_wf
-    if body:
-        e_all = dacc(dal_u, dw_u, al_u, w_u, elbow, de)
-        a_u = dacc(dal_u, dw_u, al_u, w_u, d_u, ddu)
-        a_f = e_all + dacc(dal_f, dw_f, al_f, w_f, d_f, ddf)
-    else:
-        a_u = np.zeros((15, 3))
-        a_f = np.zeros((15, 3))
-    a_u[10:] -= ax_vu
-    a_f[10:] -= ax_vf
-    j_gu = (g_u @ R_SIu).T
-    j_gf = (g_f @ R_SIf).T
-    j_au = (a_u @ R_SIu).T
-    j_af = (a_f @ R_SIf).T
-    j_e = np.vstack((zeros10, de)).T
-    j_w = np.vstack((zeros10, de + dwr)).T
-    return Sensors(gyr_u, acc_u, gyr_f, acc_f, elbow, wrist, j_gu, j_au, j_gf, j_af, j_e, j_w)
-
-
-def _skew(v: F64) -> F64:
-    """``K`` with ``a @ K == a × v`` for rows ``a``."""
-    x, y, z = float(v[0]), float(v[1]), float(v[2])
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-
-
-def _skew_stack(*vs: F64) -> F64:
-    """Side-by-side :func:`_skew` of several vectors, (3, 3·k)."""
-    x, y, z = np.array(vs).T
-    o = np.zeros_like(x)
-    return np.array([[o, -z, y], [z, o, -x], [-y, x, o]]).transpose(0, 2, 1).reshape(3, -1)
-
-
-def _cross1(a: F64, b: F64) -> F64:
-    a0, a1, a2 = float(a[0]), float(a[1]), float(a[2])
-    b0, b1, b2 = float(b[0]), float(b[1]), float(b[2])
-    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
+        return Sensors(gu, au, gf, af, e, w, None, None, None, None, None, None)
+    jgu, jau, jgf, jaf, je, jw = (np.ascontiguousarray(jac[k].T) for k in range(6))
+    return Sensors(gu, au, gf, af, e, w, jgu, jau, jgf, jaf, je, jw)

@@ -3,7 +3,8 @@
 Both predict with the linear process of eqs. 3–4 (exact, so the UKF needs no sigma points
 there) and differ in the update: the EKF linearises ``h`` with the analytic Jacobian of
 :func:`estimators.wearable.dh.sensors`; the UKF propagates scaled sigma points (α = 1, β = 2,
-κ = 0) through ``h``. A step is pure: ``(x, P)`` in, ``(x, P, nis)`` out.
+κ = 0) through ``h``. A step is pure: ``(x, P)`` in, ``(x, P, nis)`` out. The arithmetic is
+:mod:`estimators.wearable.kernel` (compiled); the EKF's whole step is one call into it.
 """
 
 from __future__ import annotations
@@ -11,36 +12,30 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve
 
+from estimators.wearable import kernel
 from estimators.wearable.dh import F64
 from estimators.wearable.model import Measurement, Model
 
 
-def predict(x: F64, P: F64, f: F64, q: F64) -> tuple[F64, F64]:
-    """``x⁻ = F x``, ``P⁻ = F P Fᵀ + Q`` (eqs. 3, 4)."""
-    return f @ x, f @ P @ f.T + q
-
-
-def _gain(P: F64, Pxz: F64, S: F64, y: F64) -> tuple[F64, F64, float]:
-    c = cho_factor(S, lower=True, check_finite=False)
-    K = cho_solve(c, Pxz.T, check_finite=False).T
-    nis = float(y @ cho_solve(c, y, check_finite=False)) / max(len(y), 1)
-    return K, K @ S @ K.T, nis
+def predict(model: Model, x: F64, P: F64, ts: float) -> tuple[F64, F64]:
+    """``x⁻ = F x``, ``P⁻ = F P Fᵀ + Q`` (eqs. 3, 4) over ``ts`` s."""
+    args = model.process_args(ts)
+    xn, Pn = kernel.predict(x, P, args[0], *args[2:])
+    return xn, Pn
 
 
 def ekf_update(model: Model, x: F64, P: F64, m: Measurement) -> tuple[F64, F64, float]:
     """EKF update with the analytic Jacobian; returns ``x⁺``, ``P⁺`` and the normalised
     innovation squared per row (≈ 1 when the model fits the data)."""
-    z, r = model.rows(m)
-    h, H = model.predict_rows(x, m)
-    y = z - h
-    PHt = P @ H.T
-    S = H @ PHt
-    S[np.diag_indices_from(S)] += r
-    K, KSK, nis = _gain(P, PHt, S, y)
-    Pn = P - KSK
-    return x + K @ y, 0.5 * (Pn + Pn.T), nis
+    return ekf_step(model, x, P, 0.0, m)
+
+
+def ekf_step(model: Model, x: F64, P: F64, ts: float, m: Measurement) -> tuple[F64, F64, float]:
+    """:func:`predict` over ``ts`` s (none if ``ts`` ≤ 0), then :func:`ekf_update`."""
+    z, have = model.slots(m)
+    xn, Pn, nis = kernel.ekf_step_packed(x, P, ts, z, have, *model.packed)
+    return xn, Pn, float(nis)
 
 
 def ukf_update(model: Model, x: F64, P: F64, m: Measurement) -> tuple[F64, F64, float]:
@@ -65,10 +60,19 @@ def ukf_update(model: Model, x: F64, P: F64, m: Measurement) -> tuple[F64, F64, 
     S = (dz.T * wc) @ dz
     S[np.diag_indices_from(S)] += r
     Pxz = (dx.T * wc) @ dz
-    y = z - zm
-    K, KSK, nis = _gain(P, Pxz, S, y)
-    Pn = P - KSK
-    return x + K @ y, 0.5 * (Pn + Pn.T), nis
+    xn, Pn, nis = kernel.gain_update(x, P, Pxz, S, z - zm)
+    return xn, Pn, float(nis)
+
+
+def step(
+    kind: Literal["ekf", "ukf"], model: Model, x: F64, P: F64, ts: float, m: Measurement
+) -> tuple[F64, F64, float]:
+    """The selected filter's step: predict over ``ts`` s (none if ``ts`` ≤ 0), then update."""
+    if kind == "ekf":
+        return ekf_step(model, x, P, ts, m)
+    if ts > 0.0:
+        x, P = predict(model, x, P, ts)
+    return ukf_update(model, x, P, m)
 
 
 def update(

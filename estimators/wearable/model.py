@@ -15,11 +15,12 @@ position rows are left out (σp² = ∞), never given a large variance. ``R`` is
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
+from numpy.typing import NDArray
 
-from estimators.wearable import dh
+from estimators.wearable import dh, kernel
 from estimators.wearable.dh import F64, I64
 from estimators.wearable.params import WearableParams
 
@@ -58,6 +59,15 @@ class Model:
     use_forearm: bool
     src_cols: I64  # columns of dh's Jacobians ([θ̈ 5, θ̇ 5, θ 5]) that the state has ...
     dst_cols: I64  # ... and where they go in the state
+    # the compiled kernel's view of the same (estimators.wearable.kernel)
+    theta_idx: I64  # (3, 5) state index of θ̈, θ̇, θ of each joint, −1 if not estimated
+    bias_idx: I64  # (6, 3) gyro-bias state added to each sensor slot's row, −1 if none
+    body_idx: I64  # (6, 3) model B body-acceleration state added to a slot's row, −1 if none
+    q_rate: F64  # (n,) process noise variance per second of each state (eq. 4)
+    gm: I64  # GM-1 states (model B)
+    r_slot: F64  # (6,) noise variance of each slot's rows (eq. 19)
+    geo_args: tuple[float, float, F64, F64, F64, F64]  # lu, lf, r_u, R_UI, r_f, R_FI
+    packed: tuple[I64, F64]  # all of the above for kernel.ekf_step_packed / kernel.emit
 
     @classmethod
     def build(cls, p: WearableParams) -> Model:
@@ -91,9 +101,59 @@ class Model:
                 dst.append(int(i_d[c]))
             src.append(10 + j)
             dst.append(int(i_th[c]))
+        theta_idx = np.full((3, 5), -1, dtype=np.intp)
+        for c, j in enumerate(joints):
+            for row, idx in ((0, i_dd), (1, i_d), (2, i_th)):
+                if idx.size:
+                    theta_idx[row, j] = idx[c]
+        bias_idx = np.full((6, 3), -1, dtype=np.intp)
+        body_idx = np.full((6, 3), -1, dtype=np.intp)
+        for slot, idx in ((kernel.GYR_U, i_bu), (kernel.GYR_F, i_bf)):
+            if idx.size:
+                bias_idx[slot] = idx
+        for slot, idx in ((kernel.ACC_U, i_au), (kernel.ACC_F, i_af)):
+            if idx.size:
+                body_idx[slot] = idx
+        # eq. 4: the discrete variance per q_ref_dt_s step, scaled with the step (∝ ts)
+        q_rate = np.zeros(k)
+        top = (i_dd, i_d, i_th)[2 - order]
+        sig = (p.sigma_theta_deg, p.sigma_dtheta_dps, p.sigma_ddtheta_dps2)[order]
+        q_rate[top] = (sig * DEG) ** 2 / p.q_ref_dt_s
+        q_rate[i_bu] = (p.gyro_bias_walk_dps_per_sqrt_s * DEG) ** 2
+        q_rate[i_bf] = (p.gyro_bias_walk_dps_per_sqrt_s * DEG) ** 2
+        sg, sa, sp = (p.sigma_gyr_dps * DEG) ** 2, p.sigma_acc_ms2**2, p.sigma_pos_m**2
+        geo = p.geometry()
+        f = np.float64
+        gm = np.concatenate((i_au, i_af)).astype(np.intp)
+        r_slot = np.array([sg, sa, sg, sa, sp, sp])
+        geo_args = (
+            float(geo.upper_arm_m),
+            float(geo.forearm_m),
+            np.ascontiguousarray(geo.r_u, dtype=f),
+            np.ascontiguousarray(geo.R_UI, dtype=f),
+            np.ascontiguousarray(geo.r_f, dtype=f),
+            np.ascontiguousarray(geo.R_FI, dtype=f),
+        )
+        src_a, dst_a = np.array(src, dtype=np.intp), np.array(dst, dtype=np.intp)
+        packed = kernel.pack(
+            order,
+            k,
+            p.model == "A",
+            theta_idx,
+            bias_idx,
+            body_idx,
+            src_a,
+            dst_a,
+            gm,
+            geo_args,
+            p.body_acc_tau_s,
+            p.body_acc_sigma_ms2**2,
+            r_slot,
+            q_rate,
+        )
         return cls(
             p,
-            p.geometry(),
+            geo,
             order,
             joints,
             k,
@@ -105,36 +165,39 @@ class Model:
             i_au,
             i_af,
             use_f,
-            np.array(src),
-            np.array(dst),
+            src_a,
+            dst_a,
+            theta_idx,
+            bias_idx,
+            body_idx,
+            q_rate,
+            gm,
+            r_slot,
+            geo_args,
+            packed,
         )
 
     # ------------------------------------------------------------------ process (eqs. 3, 4)
     def transition(self, ts: float) -> tuple[F64, F64]:
         """``F`` (eq. 3) and ``Q`` (eq. 4) for a step of ``ts`` s."""
-        p, n = self.params, self.n
-        f = np.eye(n)
-        q = np.zeros(n)
-        scale = ts / p.q_ref_dt_s
-        if self.order == 2:
-            f[self.i_d, self.i_dd] = ts
-            f[self.i_th, self.i_dd] = 0.5 * ts * ts
-            f[self.i_th, self.i_d] = ts
-            q[self.i_dd] = (p.sigma_ddtheta_dps2 * DEG) ** 2 * scale
-        elif self.order == 1:
-            f[self.i_th, self.i_d] = ts
-            q[self.i_d] = (p.sigma_dtheta_dps * DEG) ** 2 * scale
-        else:
-            q[self.i_th] = (p.sigma_theta_deg * DEG) ** 2 * scale
-        walk = (p.gyro_bias_walk_dps_per_sqrt_s * DEG) ** 2 * ts
-        q[self.i_bu] = walk
-        q[self.i_bf] = walk
-        if p.model == "B":
-            phi = np.exp(-ts / p.body_acc_tau_s)
-            for idx in (self.i_au, self.i_af):
-                f[idx, idx] = phi
-                q[idx] = p.body_acc_sigma_ms2**2 * (1.0 - phi * phi)
+        f, q = kernel.fq(*self.process_args(ts))
         return f, np.diag(q)
+
+    def process_args(self, ts: float) -> tuple[Any, ...]:
+        """The arguments of :func:`kernel.fq` (and, after ``n``, of :func:`kernel.predict`)."""
+        p = self.params
+        return (
+            ts,
+            self.n,
+            self.order,
+            self.i_dd,
+            self.i_d,
+            self.i_th,
+            self.q_rate,
+            self.gm,
+            p.body_acc_tau_s,
+            p.body_acc_sigma_ms2**2,
+        )
 
     def initial(self) -> tuple[F64, F64]:
         """Zero pose at rest (contract §8 "Start"): ``x0`` (n,), ``P0`` (n, n)."""
@@ -150,79 +213,53 @@ class Model:
         var[self.i_af] = (0.1 * p.body_acc_sigma_ms2) ** 2
         return x, np.diag(var)
 
-    # ------------------------------------------------------------------ measurements
     def full_theta(self, x: F64) -> tuple[F64, F64, F64]:
         """θ, θ̇, θ̈ (5,) of all joints from the state; joints not estimated are 0."""
-        th, d, dd = np.zeros(5), np.zeros(5), np.zeros(5)
-        j = list(self.joints)
-        th[j] = x[self.i_th]
-        if self.order >= 1:
-            d[j] = x[self.i_d]
-        if self.order >= 2:
-            dd[j] = x[self.i_dd]
+        th, d, dd = kernel.joint_values(x, self.theta_idx)
         return th, d, dd
+
+    # ------------------------------------------------------------------ measurements
+    def slots(self, m: Measurement) -> tuple[F64, NDArray[np.bool_]]:
+        """The readings ``z`` (6, 3) in kernel slot order and which slots this step measures
+        (``have`` (6,) bool): the camera rows are left out without a camera sample (σp² = ∞)."""
+        z = np.zeros((6, 3))
+        have = np.zeros(6, dtype=np.bool_)
+        z[kernel.GYR_U], z[kernel.ACC_U] = m.gyr_u, m.acc_u
+        have[kernel.GYR_U] = self.order >= 1
+        have[kernel.ACC_U] = True
+        if self.use_forearm and m.gyr_f is not None and m.acc_f is not None:
+            z[kernel.GYR_F], z[kernel.ACC_F] = m.gyr_f, m.acc_f
+            have[kernel.GYR_F] = self.order >= 1
+            have[kernel.ACC_F] = True
+        if self.params.camera and m.elbow is not None:
+            z[kernel.ELBOW] = m.elbow
+            have[kernel.ELBOW] = True
+            if self.use_forearm and m.wrist is not None:
+                z[kernel.WRIST] = m.wrist
+                have[kernel.WRIST] = True
+        return z, have
 
     def rows(self, m: Measurement) -> tuple[F64, F64]:
         """The measurement vector ``z`` and the diagonal of ``R`` (eq. 19) for what ``m`` holds."""
-        p = self.params
-        parts: list[F64] = []
-        var: list[float] = []
-        sg, sa, sp = (p.sigma_gyr_dps * DEG) ** 2, p.sigma_acc_ms2**2, p.sigma_pos_m**2
-        if self.order >= 1:
-            parts.append(m.gyr_u)
-            var += [sg] * 3
-        parts.append(m.acc_u)
-        var += [sa] * 3
-        if self.use_forearm and m.gyr_f is not None and m.acc_f is not None:
-            if self.order >= 1:
-                parts.append(m.gyr_f)
-                var += [sg] * 3
-            parts.append(m.acc_f)
-            var += [sa] * 3
-        if p.camera and m.elbow is not None:
-            parts.append(m.elbow)
-            var += [sp] * 3
-            if self.use_forearm and m.wrist is not None:
-                parts.append(m.wrist)
-                var += [sp] * 3
-        return np.concatenate(parts), np.array(var)
+        z, have = self.slots(m)
+        zv, rv = kernel.stack(z, have, self.r_slot)
+        return zv, rv
+
+    def measure_args(self, jacobian: bool) -> tuple[Any, ...]:
+        """The arguments of :func:`kernel.measure` after ``x`` and ``have``."""
+        return (
+            self.theta_idx,
+            self.src_cols,
+            self.dst_cols,
+            self.bias_idx,
+            self.body_idx,
+            *self.geo_args,
+            self.params.model == "A",
+            jacobian,
+        )
 
     def predict_rows(self, x: F64, m: Measurement, jacobian: bool = True) -> tuple[F64, F64]:
         """``h(x)`` and its Jacobian ``H`` (rows as :meth:`rows`, columns the state)."""
-        th, d, dd = self.full_theta(x)
-        s = dh.sensors(th, d, dd, self.geo, body=self.params.model == "A", jacobian=jacobian)
-        hs: list[F64] = []
-        hj: list[F64] = []
-        src, dst = self.src_cols, self.dst_cols
-        with_f = self.use_forearm and m.gyr_f is not None and m.acc_f is not None
-
-        def add(v: F64, jac: F64 | None, bias: I64 | None = None, body: I64 | None = None) -> None:
-            val = v
-            if bias is not None and bias.size:
-                val = val + x[bias]
-            if body is not None and body.size:
-                val = val + x[body]
-            hs.append(val)
-            if jacobian:
-                assert jac is not None
-                row = np.zeros((3, self.n))
-                row[:, dst] = jac[:, src]
-                if bias is not None and bias.size:
-                    row[:, bias] = np.eye(3)
-                if body is not None and body.size:
-                    row[:, body] = np.eye(3)
-                hj.append(row)
-
-        if self.order >= 1:
-            add(s.gyr_u, s.J_gyr_u, self.i_bu)
-        add(s.acc_u, s.J_acc_u, None, self.i_au)
-        if with_f:
-            if self.order >= 1:
-                add(s.gyr_f, s.J_gyr_f, self.i_bf)
-            add(s.acc_f, s.J_acc_f, None, self.i_af)
-        if self.params.camera and m.elbow is not None:
-            add(s.elbow, s.J_elbow)
-            if self.use_forearm and m.wrist is not None:
-                add(s.wrist, s.J_wrist)
-        h = np.concatenate(hs)
-        return h, (np.vstack(hj) if jacobian else np.zeros((0, self.n)))
+        _, have = self.slots(m)
+        h, H = kernel.measure(x, have, *self.measure_args(jacobian))
+        return h, (H if jacobian else np.zeros((0, self.n)))

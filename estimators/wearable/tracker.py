@@ -25,7 +25,7 @@ from typing import Literal
 
 import numpy as np
 
-from estimators.wearable import dh, filters
+from estimators.wearable import dh, filters, kernel
 from estimators.wearable.dh import F64
 from estimators.wearable.model import DEG, Measurement, Model
 from estimators.wearable.params import WearableParams, mirror_rates, mirror_vectors
@@ -54,7 +54,7 @@ COLUMNS = (
     "wrist_z",
 )
 STD_COLUMNS = (*(f"{c[:-4]}_std_deg" for c in COLUMNS[1:6]), "vertical_std_deg")
-_UP = np.array([0.0, 0.0, 1.0])
+_NAN3 = np.full(3, np.nan)
 Kind = Literal["upperarm", "forearm", "camera"]
 
 
@@ -123,15 +123,24 @@ def feed(
         else:
             u, v = mirror_rates(u), mirror_vectors(v)
     buf = {"upperarm": state.upper, "forearm": state.fore, "camera": state.cam}[kind]
+    # per-sample checks, vectorised over the message (each sample's verdict is its own)
+    with np.errstate(invalid="ignore"):
+        finite = (np.isfinite(t) & np.isfinite(u).all(axis=1) & np.isfinite(v).all(axis=1)).tolist()
+        in_range = (
+            [True] * len(t)
+            if kind == "camera"
+            else (
+                (np.abs(u).max(axis=1, initial=0.0) <= params.max_gyro_rads)
+                & (np.abs(v).max(axis=1, initial=0.0) <= params.max_acc_ms2)
+            ).tolist()
+        )
+    ts_list = t.tolist()
     for i in range(len(t)):
-        ti = float(t[i])
-        if not (math.isfinite(ti) and np.isfinite(u[i]).all() and np.isfinite(v[i]).all()):
+        ti = ts_list[i]
+        if not finite[i]:
             state.rejected[f"nonfinite_{kind}"] += 1
             continue
-        if kind != "camera" and (
-            float(np.abs(u[i]).max()) > params.max_gyro_rads
-            or float(np.abs(v[i]).max()) > params.max_acc_ms2
-        ):
+        if not in_range[i]:
             state.rejected[f"out_of_range_{kind}"] += 1  # beyond any body-worn IMU's range
             continue
         if ti <= state.t_seen[kind]:
@@ -264,11 +273,8 @@ def _step(
         state.rejected["forearm_missing"] += 1
     assert state.x is not None and state.P is not None
     x, P = state.x, state.P
-    if ts > 0.0:
-        f, q = model.transition(ts)
-        x, P = filters.predict(x, P, f, q)
     m = Measurement(gyr_u, acc_u, gyr_f, acc_f, elbow_c, wrist_c)
-    x, P, nis = filters.update(params.filter, model, x, P, m)
+    x, P, nis = filters.step(params.filter, model, x, P, ts, m)
     state.x, state.P = x, P
     state.steps += 1
     state.vertical_deg += params.vertical_drift_dps * ts
@@ -341,41 +347,26 @@ def _emit(
 ) -> None:
     model = state.model
     assert state.x is not None and state.P is not None
-    th = np.zeros(5)
-    std = np.zeros(5)
-    th[list(model.joints)] = state.x[model.i_th]
-    std[list(model.joints)] = np.sqrt(np.diag(state.P)[model.i_th])
-    ps = dh.pose(th, model.geo.upper_arm_m, model.geo.forearm_m)
-    elbow, wrist = ps.elbow, ps.wrist
-    # the whole arm's turn about the vertical, δψ = ẑ·Σ a_j δθ_j over the shoulder's joints:
-    # unobservable without a camera, carried by the gyros alone (contract §8 "Start")
-    sh = [k for k, j in enumerate(model.joints) if j < 3]
-    g = ps.axes[[model.joints[k] for k in sh]] @ _UP
-    i_sh = model.i_th[sh]
-    vert = float(np.sqrt(max(g @ state.P[np.ix_(i_sh, i_sh)] @ g, 0.0)))
-    vert = math.hypot(math.degrees(vert), state.vertical_deg)
-    # each shoulder angle's share of a pure turn about the vertical: Σ a_j δθ_j = ẑ δψ
-    turn = np.zeros(5)
-    if all(j in model.joints for j in (0, 1, 2)):
-        a3 = ps.axes[:3].T
-        if abs(np.linalg.det(a3)) > 1e-6:  # away from the gimbal lock at 90° abduction
-            turn[:3] = np.linalg.solve(a3, _UP)
-    std = np.hypot(std, np.radians(state.vertical_deg) * turn)
+    o = kernel.emit(state.x, state.P, *model.packed, math.radians(state.vertical_deg))
+    # the whole arm's turn about the vertical (unobservable without a camera, carried by the
+    # gyros alone, contract §8 "Start"): the EKF's σ of it and the drift bound
+    vert = math.hypot(float(o[16]), state.vertical_deg)
+    elbow, wrist = o[10:13], o[13:16]
     if params.side == "left":
         elbow, wrist = mirror_vectors(elbow), mirror_vectors(wrist)
-    deg = np.degrees(th)
-    sdeg = np.degrees(std)
+    deg = o[0:5]
+    sdeg = o[5:10]
     if not model.use_forearm or flags & FOREARM_MISSING:
         deg[3:] = np.nan
         sdeg[3:] = np.nan
-        wrist = np.full(3, np.nan)
+        wrist = _NAN3
     if flags & MOUNTING_MISMATCH:
         deg[:] = np.nan
         sdeg[:] = np.nan
-        elbow = wrist = np.full(3, np.nan)
-    vals = (t, *deg, *elbow, *wrist)
+        elbow = wrist = _NAN3
+    vals = (t, *deg.tolist(), *elbow.tolist(), *wrist.tolist())
     for c, val in zip(COLUMNS, vals, strict=True):
-        out[c].append(float(val))
-    for c, val in zip(STD_COLUMNS, (*sdeg, vert), strict=True):
-        out[c].append(float(val))
+        out[c].append(val)
+    for c, val in zip(STD_COLUMNS, (*sdeg.tolist(), vert), strict=True):
+        out[c].append(val)
     out["flags"].append(float(flags))

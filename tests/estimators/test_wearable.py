@@ -183,6 +183,35 @@ def test_process_model_eq3_eq4():
     assert not np.diag(q)[5:].any()
 
 
+@pytest.mark.parametrize("model", ["A", "B", "C", "I"])
+def test_compiled_predict_and_ekf_step_equal_the_dense_equations(model: str) -> None:
+    """The kernel's structured predict equals F P Fᵀ + Q, and its one-call EKF step equals
+    the textbook update with the model's h and H (K = P Hᵀ S⁻¹, P⁺ = P − K S Kᵀ)."""
+    from estimators.wearable import filters
+
+    mdl = Model.build(WearableParams(model=model))  # type: ignore[arg-type]
+    rng = np.random.default_rng(3)
+    x = rng.normal(scale=0.3, size=mdl.n)
+    a = rng.normal(size=(mdl.n, mdl.n))
+    P = a @ a.T * 1e-3 + np.eye(mdl.n) * 1e-4
+    ts = 0.01
+    f, q = mdl.transition(ts)
+    xp, Pp = filters.predict(mdl, x, P, ts)
+    np.testing.assert_allclose(xp, f @ x, atol=1e-12)
+    np.testing.assert_allclose(Pp, f @ P @ f.T + q, atol=1e-12)
+    g = np.array([0.1, -0.2, 0.3])
+    acc = np.array([0.5, 9.7, -0.4])
+    m = Measurement(g, acc, -g, acc[::-1].copy(), np.array([0.0, -0.05, -0.3]))
+    z, r = mdl.rows(m)
+    h, H = mdl.predict_rows(xp, m)
+    S = H @ Pp @ H.T + np.diag(r)
+    K = Pp @ H.T @ np.linalg.inv(S)
+    xn, Pn, nis = filters.ekf_step(mdl, x, P, ts, m)
+    np.testing.assert_allclose(xn, xp + K @ (z - h), atol=1e-9)
+    np.testing.assert_allclose(Pn, Pp - K @ S @ K.T, atol=1e-12)
+    assert nis == pytest.approx((z - h) @ np.linalg.solve(S, z - h) / len(z))
+
+
 def test_camera_rows_are_left_out_without_camera():
     mdl = Model.build(WearableParams())
     z3 = np.zeros(3)
