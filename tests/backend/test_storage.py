@@ -342,6 +342,9 @@ class RecordingLive:
         self.calls.append(("started", session))
         return f"recordings/session-{session.id}.jsonl"
 
+    async def session_committed(self, session: SessionInfo) -> None:
+        self.calls.append(("committed", session))
+
     async def session_stopped(self, session: SessionInfo) -> dict[str, Any] | None:
         self.calls.append(("stopped", session.id))
         return {"cycles": 0, "compensatory": 0}
@@ -371,6 +374,7 @@ async def test_live_hooks(
     kind, info = live.calls[0]
     assert kind == "started" and (info.id, info.device, info.patient_id) == (sid, "rig-1", pid)
     assert info.params["tolerance_m"] == 0.12
+    assert live.calls[1] == ("committed", info)  # after the commit, the same session
 
     r = await client.put(
         f"/api/sessions/{sid}/nominal-shoulder", json={"source": "estimate"}, headers=admin

@@ -156,6 +156,23 @@ def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
     )
 
 
+@pytest.fixture(scope="module")
+def workers_service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
+    """The scaled-out service: the API node (``rehab serve --workers 2`` in this process,
+    so that a test can read its 3D view) and two real ``rehab worker`` processes."""
+    data = tmp_path_factory.mktemp("live-workers")
+    yield from _service(
+        Settings(
+            data_dir=data,
+            port=free_port(),
+            zenoh_listen=f"tcp/127.0.0.1:{free_port()}",
+            cookie_secure=False,
+            admit=["*"],
+            workers=2,
+        )
+    )
+
+
 def _service(settings: Settings) -> Iterator[Service]:
     running = run_service(settings)
     url = f"http://127.0.0.1:{settings.port}"

@@ -90,6 +90,16 @@ def refused(service: Service, path: str, headers: dict[str, str] | None = None) 
 
 
 def test_live_and_overlay_feeds(service: Service) -> None:
+    live_and_overlay_feeds(service)
+
+
+def test_live_and_overlay_feeds_through_workers(workers_service: Service) -> None:
+    """The same feeds when worker processes run the pipelines: the API node fans the
+    workers' messages out, the overlay's included."""
+    live_and_overlay_feeds(workers_service)
+
+
+def live_and_overlay_feeds(service: Service) -> None:
     main, other = "ws01", "ws02"
     sims = {
         d: simulate(SimConfig(seed=s, duration_s=50.0, device=d))
@@ -104,7 +114,8 @@ def test_live_and_overlay_feeds(service: Service) -> None:
         sid = session["id"]
         assert session["params"]["warning_after_s"] is None
         assert session["params"]["tolerance_m"] == 0.12
-        assert service.manager.workers[main].live.params.warning_after_s is None
+        if service.manager.workers:  # one process: the pipeline runs here
+            assert service.manager.workers[main].live.params.warning_after_s is None
         wait_for(lambda: service.device(other), what="second device")
         token = service.api.post(f"/api/sessions/{sid}/overlay-link").json()["token"]
 
