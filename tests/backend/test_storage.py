@@ -374,7 +374,9 @@ async def test_live_hooks(
     kind, info = live.calls[0]
     assert kind == "started" and (info.id, info.device, info.patient_id) == (sid, "rig-1", pid)
     assert info.params["tolerance_m"] == 0.12
-    assert live.calls[1] == ("committed", info)  # after the commit, the same session
+    kind, committed = live.calls[1]  # after the commit: the same session, its recording set
+    assert kind == "committed" and committed.id == sid
+    assert committed.recording_path == f"recordings/session-{sid}.jsonl"
 
     r = await client.put(
         f"/api/sessions/{sid}/nominal-shoulder", json={"source": "estimate"}, headers=admin
