@@ -304,6 +304,12 @@ class Gateway(LiveManager):
     def _each_second(self) -> None:
         pass
 
+    def admit_device(self, name: str) -> None:
+        """Admitted and registered; no pipeline here (a worker leases it when a session
+        starts on it or its data comes, and admits it by its registry row)."""
+        self.admission.admit(name)
+        self._touch([name])
+
     # ------------------------------------------------------------------ LiveHooks
 
     def _query(self, device: str, body: dict[str, Any]) -> dict[str, Any] | None:

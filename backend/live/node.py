@@ -34,6 +34,7 @@ import zenoh
 from sqlalchemy import Engine, func, select
 from sqlalchemy.ext.asyncio import AsyncSession
 
+from backend.db.devices import get_device, is_removed
 from backend.db.engine import Database
 from backend.db.models import Cycle, Device, Patient, Session
 from backend.db.sessions import record_cycle
@@ -546,8 +547,14 @@ class WorkerNode(LiveManager):
         behind tries; the database's conditional update picks one."""
         if device in self.held.epochs:
             return True
-        if self.behind or not self.admission.allows(device):
+        if self.behind:
             return False
+        if not self.admission.allows(device):  # a registry row is an admission (an admin's)
+            async with self.database.session() as db:
+                row = await get_device(db, device)
+            if row is None or is_removed(row):
+                return False
+            self.admission.admit(device)
         sent_mono, sent_wall = time.monotonic(), time.time()
         try:
             async with self.database.transaction() as db:

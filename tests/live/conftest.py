@@ -130,7 +130,9 @@ def run_service(settings: Settings) -> _Running:
     )
     thread = threading.Thread(target=server.run, name="service", daemon=True)
     thread.start()
-    wait_for(lambda: server.started or not thread.is_alive(), what="service start")
+    # with workers, the API node waits for their processes (imports: slow on a loaded box)
+    wait = 20.0 if not settings.workers else 90.0
+    wait_for(lambda: server.started or not thread.is_alive(), wait, what="service start")
     assert server.started, "the service did not start"
     return _Running(server, thread, app)
 
