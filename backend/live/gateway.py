@@ -238,10 +238,9 @@ class Gateway(LiveManager):
         sid = self.session_of.get(device)
         if kind == "status":
             self.last_status[device] = text
-            new_sid = msg.get("session_id")
-            if sid is not None and new_sid != sid:
-                self.hub.end_session(sid)  # its overlays close, as in the one process
-            sid = self.session_of[device] = new_sid
+            # overlays close on the stop (session_stopped), not on a status: one without the
+            # session may be older than the start, or come from a holder still replaying it
+            sid = self.session_of[device] = msg.get("session_id")
         elif kind == "estimate" and self.viz is not None and self.viz.selected == device:
             rows = msg.get("rows")
             if isinstance(rows, dict):
