@@ -149,6 +149,7 @@ class WorkerNode(LiveManager):
         self._stopped: set[int] = set()  # sessions stopped here: never resumed
         self._started_at: dict[int, float] = {}
         self._resuming: dict[str, asyncio.Lock] = {}  # device → its start/takeover
+        self._claiming: set[str] = set()  # leases being taken on a session start
         self.lag_s = 0.0
         self.paused_steps = 0  # lease steps that found devices past their local deadline
         self.behind = False
@@ -342,7 +343,7 @@ class WorkerNode(LiveManager):
             else:
                 self.held.renewed(name, epoch, sent_mono)
         # rows of ours no longer held here (dropped by the loop): let them go now
-        stray = [d for d in kept if d not in self.held.epochs]
+        stray = [d for d in kept if d not in self.held.epochs and d not in self._claiming]
         if stray:
             with engine.begin() as conn:
                 lease.release_sync(conn, holder, stray)
@@ -556,15 +557,19 @@ class WorkerNode(LiveManager):
                 return False
             self.admission.admit(device)
         sent_mono, sent_wall = time.monotonic(), time.time()
+        # until granted here, the lease thread must not take the new row for a stray one
+        self._claiming.add(device)
         try:
             async with self.database.transaction() as db:
                 epoch = await lease.acquire(db, device, self.held.holder, sent_wall)
+            if epoch is not None and device not in self.held.epochs:
+                self.held.granted(device, epoch, sent_mono)
+                self._gain(device)
         except Exception:
             log.warning("device %s: lease not taken", device, exc_info=True)
             return False
-        if epoch is not None and device not in self.held.epochs:
-            self.held.granted(device, epoch, sent_mono)
-            self._gain(device)
+        finally:
+            self._claiming.discard(device)
         return device in self.held.epochs
 
     async def _answer(self, query: zenoh.Query, device: str, payload: bytes) -> None:
