@@ -383,6 +383,8 @@ class WorkerNode(LiveManager):
         log.info("device %s: lease taken (epoch %d)", name, self.held.epochs[name])
         self._first_unheld.pop(name, None)
         self._worker_for(name)
+        if name in self.announced:  # its token came before the lease: online by it, as in
+            super()._on_token(name, True)  # the one process (not only while data flows)
         asyncio.get_running_loop().create_task(self._reconcile([name]))
 
     def _lose(self, name: str, why: str) -> None:

@@ -72,3 +72,25 @@ def test_live_report_export_and_3d_view_of_a_running_session(workers_service: Se
     # flushed on asking: the CSV of the running session held (nearly) every row by then
     assert len(rows) > 0.95 * len(final), (len(rows), len(final), last_t)
     assert len(cycles) == stopped["summary"]["cycles"]
+
+
+def test_a_quiet_device_holding_its_token_stays_online(workers_service: Service) -> None:
+    """Online by its liveliness token, as in the one process, not only while its data
+    flows: the token comes before any worker leases the device, and the holder must keep
+    it (the dashboard said "Device offline" to a device waiting for the patient)."""
+    svc = workers_service
+    name = "wp03"
+    sim = simulate(SimConfig(seed=13, duration_s=15.0, device=name))
+    outgoing = [m for m in prepare(sim.messages) if m.at < 2.0]  # 2 s of data, then quiet
+    with svc.publisher() as pub:
+        pub.declare(outgoing)
+        assert pub.wait_for_subscribers(10.0)
+        play(pub, outgoing, speed=1.0)
+        # (without a session, messages before a worker leases the device are not kept)
+        wait_for(lambda: svc.received(name) > 0, timeout=30, what="data heard")
+        time.sleep(svc.settings.device_offline_after_s + 3.0)  # silent, its token held
+        device = svc.device(name)
+        assert device is not None and device["status"] == "online", device
+    wait_for(
+        lambda: (svc.device(name) or {}).get("status") == "offline", timeout=30, what="offline"
+    )
