@@ -151,7 +151,9 @@ def live_and_overlay_feeds(service: Service) -> None:
     kinds = {m["type"] for _, m in everything.messages}
     assert {"hello", "status", "estimate", "state", "cycle"} <= kinds
 
-    status = everything.of("status", main)[-2]
+    # the last status of the running session (through workers, more than one status can
+    # follow the stop before the socket closes: the stop's and the second tick's)
+    status = [m for m in everything.of("status", main) if m["session_id"] is not None][-1]
     for key in (
         "online",
         "session_id",
