@@ -136,13 +136,19 @@ def add_parser(sub: Any) -> None:
         help="be a client of the Zenoh router at ENDPOINT (REHAB_ZENOH_CONNECT)",
     )
     _security(s)
-    s.add_argument(
+    mode = s.add_mutually_exclusive_group()
+    mode.add_argument(
         "--workers",
         type=_workers,
         metavar="N|auto",
-        help="worker processes running the pipelines ('auto': the core count; 0: API only, "
-        "for workers started elsewhere with `rehab worker`; REHAB_WORKERS); unset: this "
-        "process runs every pipeline itself",
+        help="worker processes running the pipelines (default and 'auto': the core count; "
+        "0: API only, for workers started elsewhere with `rehab worker`; REHAB_WORKERS)",
+    )
+    mode.add_argument(
+        "--single-process",
+        action="store_true",
+        help="run every pipeline in this process, no workers (a small installation, "
+        "debugging; docs/scaling.md)",
     )
     s.set_defaults(func=cmd_serve)
 
@@ -188,11 +194,22 @@ def add_parser(sub: Any) -> None:
     d.set_defaults(func=cmd_demo)
 
 
+def serve_workers(args: argparse.Namespace, settings: Settings) -> int | None:
+    """Worker processes of ``rehab serve``: ``--workers``, else REHAB_WORKERS, else the core
+    count; ``None`` (one process) with ``--single-process``."""
+    from backend.live.gateway import default_workers
+
+    if args.single_process:
+        return None
+    if args.workers is not None:  # `--workers auto`: the core count
+        return default_workers() if args.workers < 0 else int(args.workers)
+    return default_workers() if settings.workers is None else settings.workers
+
+
 def cmd_serve(args: argparse.Namespace) -> int:
     import uvicorn
 
     from backend.app import create_app
-    from backend.live.gateway import default_workers
 
     logging.basicConfig(level=args.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
     settings = settings_from_args(args)
@@ -208,9 +225,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     except ZenohConfigError as exc:
         print(f"rehab serve: {exc}", file=sys.stderr)
         return 2
-    if args.workers is not None:  # `--workers auto`: the core count
-        workers = default_workers() if args.workers < 0 else args.workers
-        settings = settings.model_copy(update={"workers": workers})
+    settings = settings.model_copy(update={"workers": serve_workers(args, settings)})
     app = create_app(settings)
     app.state.live_required = True  # a service that cannot open Zenoh must not pretend
     uvicorn.run(

@@ -53,6 +53,11 @@ class LiveHooks(Protocol):
         """Start recording/applying params; return the recording path (relative to data_dir)."""
         ...
 
+    async def session_committed(self, session: SessionInfo) -> None:
+        """After the start's commit (the one call that is): the live side may now wait for
+        what needs the committed row (a worker process starting the session)."""
+        ...
+
     async def session_stopped(self, session: SessionInfo) -> dict[str, Any] | None:
         """Close the recording; return the session summary to store (or ``None``)."""
         ...
@@ -70,6 +75,9 @@ class NoLive:
     """The hooks before a pipeline is wired in: sessions are only records."""
 
     async def session_started(self, session: SessionInfo) -> str | None:
+        return None
+
+    async def session_committed(self, session: SessionInfo) -> None:
         return None
 
     async def session_stopped(self, session: SessionInfo) -> dict[str, Any] | None:

@@ -125,7 +125,9 @@ class Settings(BaseSettings):
         default=None,
         ge=0,
         description="Worker processes the API node starts (`rehab serve --workers`; 0: API "
-        "only, remote workers); unset: one process runs everything (tests, the demo).",
+        "only, remote workers); unset: one process runs everything. `rehab serve` makes it "
+        "the core count unless --single-process; in code (create_app: the tests) and in "
+        "`rehab demo` it stays unset.",
     )
     snapshot_every_s: float = Field(
         default=30.0,

@@ -283,7 +283,11 @@ def run(
             "*",
             # --worker-routers: an API-only node; the workers, each its own Zenoh router
             # joined to the node's (router to router), are started below
-            *(["--workers", str(0 if worker_routers else workers)] if workers is not None else []),
+            *(
+                ["--workers", str(0 if worker_routers else workers)]
+                if workers is not None
+                else ["--single-process"]  # no --workers: the one-process figures
+            ),
             *(["--database-url", database_url] if database_url else []),
         ],
         cwd=REPO,

@@ -192,6 +192,22 @@ def overlay_block(rows: Mapping[str, NDArray[Any]]) -> Block:
     return Block(_OVERLAY_FLOATS, values, _states(rows["state"]))
 
 
+def overlay_columns(rows: Mapping[str, Sequence[Any]]) -> dict[str, list[Any]] | None:
+    """The overlay's columns from a dashboard estimate message's rows (as decoded JSON,
+    null for NaN): what :func:`overlay_block` gives from the pipeline's rows, for an API node
+    that gets the dashboard's rows from a worker. ``None`` if the rows lack a column the
+    overlay draws (a device whose estimates carry no shoulder)."""
+    try:
+        shoulder = rows["shoulder_x"], rows["shoulder_y"]
+        nominal = rows["nominal_x"], rows["nominal_y"]
+        out = {name: list(rows[name]) for name in OVERLAY_COLUMNS if name not in ("dx", "dy")}
+    except KeyError:
+        return None
+    for name, s, n in zip(("dx", "dy"), shoulder, nominal, strict=True):
+        out[name] = [None if a is None or b is None else a - b for a, b in zip(s, n, strict=True)]
+    return {name: out[name] for name in OVERLAY_COLUMNS}
+
+
 def _states(codes: NDArray[Any]) -> list[str | None]:
     if len(codes) < LIST_ROWS:
         names = _STATE_LIST

@@ -24,7 +24,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, cast
 
 import orjson
 import zenoh
@@ -37,17 +37,18 @@ from backend.db.engine import Database
 from backend.db.models import Device, Session
 from backend.db.sessions import get_session, stop_session
 from backend.deps import LiveUnavailable, Point, SessionInfo
-from backend.live import files, lease
-from backend.live.hub import Client
+from backend.live import feed, files, lease
+from backend.live.hub import Client, dumps
 from backend.live.manager import COMMAND_TIMEOUT_S, LiveManager
 from backend.live.node import control_key, feed_key, worker_key
+from backend.schemas.live import StatusMsg
 from backend.settings import Settings
+from estimators.params import PipelineParams
 
 log = logging.getLogger(__name__)
 
 WORKERS_START_S = 60.0
-START_WAIT_S = 1.0  # a session start waits this long at most for the holder
-START_RETRY_S = 5.0  # ... and asks a holder again for this long (then the workers' reconcile)
+START_RETRY_S = 5.0  # a session start asks for a holder this long (then: workers' reconcile)
 START_RETRY_PERIOD_S = 0.1
 
 
@@ -107,7 +108,6 @@ class Gateway(LiveManager):
         self._feed_sub: Any = None
         self._command: list[str] = []
         self._env: dict[str, str] = {}
-        self._starts: set[asyncio.Task[None]] = set()
 
     async def start(self, require_zenoh: bool = False) -> None:
         await super().start(require_zenoh=require_zenoh)
@@ -226,24 +226,60 @@ class Gateway(LiveManager):
     # ------------------------------------------------------------------ WebSockets
 
     def _on_feed(self, data: bytes) -> None:
+        """A worker's dashboard message: to the therapists' sockets as it is; to the
+        session's overlays as the one-process hub would send them (their status, their
+        columns of the rows); the rows of the device on screen to the 3D view."""
         try:
             msg = orjson.loads(data)
             device = msg["device"]
+            kind = msg.get("type")
         except (orjson.JSONDecodeError, KeyError, TypeError):
             return
         text = data.decode("utf-8")
         sid = self.session_of.get(device)
-        if msg.get("type") == "status":
+        if kind == "status":
             self.last_status[device] = text
+            # overlays close on the stop (session_stopped), not on a status: one without the
+            # session may be older than the start, or come from a holder still replaying it
             sid = self.session_of[device] = msg.get("session_id")
+        elif kind == "estimate" and self.viz is not None and self.viz.selected == device:
+            rows = msg.get("rows")
+            if isinstance(rows, dict):
+                self.viz.update(device, rows)
+        otext: str | None = None
         for c in list(self.hub.clients):
-            if c.overlay is None and c.wants(device, sid):
+            if not c.wants(device, sid):
+                continue
+            if c.overlay is None:
                 c.send(text)
+                continue
+            if otext is None:
+                otext = self._overlay_text(msg, text)
+            if otext:
+                c.send(otext)
+
+    @staticmethod
+    def _overlay_text(msg: dict[str, Any], text: str) -> str:
+        """What an overlay gets of a therapist message ("" for nothing)."""
+        kind = msg.get("type")
+        if kind in ("state", "cycle"):
+            return text
+        if kind == "status":
+            return dumps(feed.overlay_status(cast(StatusMsg, msg)))  # a worker built it
+        if kind == "estimate":
+            rows = msg.get("rows")
+            cols = feed.overlay_columns(rows) if isinstance(rows, dict) else None
+            if cols is not None:
+                return dumps({"type": "estimate", "device": msg["device"], "rows": cols})
+        return ""
 
     def send_initial(self, client: Client) -> None:
         for name, text in sorted(self.last_status.items()):
-            if client.overlay is None and client.wants(name, self.session_of.get(name)):
-                client.send(text)
+            if client.wants(name, self.session_of.get(name)):
+                if client.overlay is None:
+                    client.send(text)
+                else:
+                    client.send(dumps(feed.overlay_status(orjson.loads(text))))
 
     def device_names(self) -> list[str]:
         return sorted(set(self.stats) | set(self.last_status))
@@ -266,6 +302,12 @@ class Gateway(LiveManager):
 
     def _each_second(self) -> None:
         pass
+
+    def admit_device(self, name: str) -> None:
+        """Admitted and registered; no pipeline here (a worker leases it when a session
+        starts on it or its data comes, and admits it by its registry row)."""
+        self.admission.admit(name)
+        self._touch([name])
 
     # ------------------------------------------------------------------ LiveHooks
 
@@ -295,6 +337,26 @@ class Gateway(LiveManager):
         return True, answer.get("result")
 
     async def session_started(self, session: SessionInfo) -> str | None:
+        # Nothing asked of the workers yet: the session is not committed, and on SQLite the
+        # request's transaction holds the database's one write lock, which a worker taking
+        # the device's lease needs. The holder starts it in session_committed.
+        if self.viz is not None:
+            params = PipelineParams.from_json(dict(session.params))
+            self.viz.configure(
+                session.device,
+                tolerance_m=params.tolerance_m,
+                cuff_to_elbow_m=params.cuff_to_elbow_m,
+                imu_to_elbow_m=params.imu_to_elbow_m,
+            )
+        return files.recording_relpath(session.id)
+
+    async def session_committed(self, session: SessionInfo) -> None:
+        """The session is in the database: the request answers once the device's holder
+        has started it, as in the one process (every message after the answer is in the
+        recording). A device nobody holds yet (announced, no data) is leased on this
+        query by a worker (``WorkerNode._claim``). Without any worker answering within
+        ``START_RETRY_S`` the request answers anyway; workers follow the database every
+        second and start it then."""
         patient = await self._patient_code(session.patient_id)
         body = {
             "op": "start",
@@ -307,25 +369,6 @@ class Gateway(LiveManager):
             },
             "patient": patient,
         }
-        # The request's transaction stays open until the hook returns. On PostgreSQL it
-        # locks its own rows only: awaited briefly, so that normally the holder has started
-        # the session (its first message is recorded) before the request returns. On SQLite
-        # it holds the database's one write lock, which the workers' lease renewals need:
-        # not awaited (50 session starts in a row, each waiting up to 1 s for the holder,
-        # kept renewals waiting 2 s: leases lost). The holder starts it on this query, or
-        # from the database within a second (workers follow it).
-        task = asyncio.create_task(self._start_on_holder(session, body))
-        self._starts.add(task)
-        task.add_done_callback(self._starts.discard)
-        if self.database.dialect != "sqlite":
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(asyncio.shield(task), START_WAIT_S)
-        return files.recording_relpath(session.id)
-
-    async def _start_on_holder(self, session: SessionInfo, body: dict[str, Any]) -> None:
-        # A device that has announced itself but sent nothing yet is leased within a few
-        # renewal periods: asked again until then, so that its session starts before its
-        # first message rather than at the workers' next look at the database.
         deadline = time.monotonic() + START_RETRY_S
         while True:
             try:
@@ -334,14 +377,18 @@ class Gateway(LiveManager):
                 log.exception("session %s: the holder of %s refused it", session.id, session.device)
                 return
             if answered:
+                self.session_of[session.device] = session.id
                 return
             if time.monotonic() > deadline:
-                log.info("session %s: no worker holds %s yet", session.id, session.device)
+                log.warning("session %s: no worker holds %s yet", session.id, session.device)
                 return
             await asyncio.sleep(START_RETRY_PERIOD_S)
 
     async def session_stopped(self, session: SessionInfo) -> dict[str, Any] | None:
         answered, result = await self._ask(session.device, {"op": "stop", "session_id": session.id})
+        if self.session_of.get(session.device) == session.id:
+            self.session_of[session.device] = None
+        self.hub.end_session(session.id)
         if answered and isinstance(result, dict):
             return result
         return None
@@ -356,14 +403,15 @@ class Gateway(LiveManager):
             raise LiveUnavailable("no worker holds the device")
         return None if result is None else [float(x) for x in result]
 
-    def live_report(self, session_id: int, device: str) -> dict[str, Any] | None:
-        return None
+    async def live_report(self, session_id: int, device: str) -> dict[str, Any] | None:
+        answered, result = await self._ask(device, {"op": "report", "session_id": session_id})
+        return result if answered and isinstance(result, dict) else None
 
     def is_running(self, session_id: int, device: str) -> bool:
         return self.session_of.get(device) == session_id
 
-    def flush_session(self, session_id: int, device: str) -> None:
-        pass  # the holder flushes every 0.25 s
+    async def flush_session(self, session_id: int, device: str) -> None:
+        await self._ask(device, {"op": "flush", "session_id": session_id})
 
 
 def make_live(

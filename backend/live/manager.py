@@ -458,7 +458,10 @@ class LiveManager:
 
     # ------------------------------------------------------------------ exports
 
-    def live_report(self, session_id: int, device: str) -> dict[str, Any] | None:
+    async def session_committed(self, session: SessionInfo) -> None:
+        """After the request's commit: nothing more to do here (the start was awaited)."""
+
+    async def live_report(self, session_id: int, device: str) -> dict[str, Any] | None:
         """A running session's report so far (provisional: no final rows, no finish())."""
         w = self.workers.get(device)
         if w is None or w.live.session_id != session_id:
@@ -471,7 +474,7 @@ class LiveManager:
         w = self.workers.get(device)
         return w is not None and w.live.session_id == session_id
 
-    def flush_session(self, session_id: int, device: str) -> None:
+    async def flush_session(self, session_id: int, device: str) -> None:
         w = self.workers.get(device)
         if w is not None and w.live.session_id == session_id and w.live.files is not None:
             w.live.run.format_rows()

@@ -36,6 +36,7 @@ import zenoh
 from sqlalchemy import Engine, func, select
 from sqlalchemy.ext.asyncio import AsyncSession
 
+from backend.db.devices import get_device, is_removed
 from backend.db.engine import Database
 from backend.db.models import Cycle, Device, Patient, Session
 from backend.db.sessions import record_cycle
@@ -62,6 +63,10 @@ RECOVER_LINES = 8192  # the recording's newest lines compared with a device's ca
 RECOVER_MAX_AGE_S = 30.0  # a device's cached messages older than this are not asked for
 FRESH_START_S = 5.0  # a session started by query this recently may not be committed yet
 TAKE_PER_STEP = 8  # new leases per lease step at most (back-pressure is checked between steps)
+
+
+# A session start (the API node's body begins so: orjson keeps the dict's order)
+START_QUERY = b'{"op":"start"'
 
 
 def worker_key(prefix: str, holder: str) -> str:
@@ -187,7 +192,8 @@ class WorkerNode(LiveManager):
         self.workers_alive: set[str] = set()
         self._stopped: set[int] = set()  # sessions stopped here: never resumed
         self._started_at: dict[int, float] = {}
-        self._resuming: set[str] = set()
+        self._resuming: dict[str, asyncio.Lock] = {}  # device → its start/takeover
+        self._claiming: set[str] = set()  # leases being taken on a session start
         self.lag_s = 0.0
         self.paused_steps = 0  # lease steps that found devices past their local deadline
         self.late_renewals = 0  # renewals answered late or sent late (logged with both)
@@ -237,9 +243,10 @@ class WorkerNode(LiveManager):
 
         def on_query(query: zenoh.Query) -> None:
             device = str(query.key_expr).rsplit("/", 1)[-1]
-            if device not in self.held.epochs:
-                return  # not ours: the query ends without a reply from us
             payload = query.payload.to_bytes() if query.payload is not None else b"{}"
+            if device not in self.held.epochs and not payload.startswith(START_QUERY):
+                return  # not ours: the query ends without a reply from us
+            # a start for a device nobody may hold yet: this worker tries to take it
             loop.call_soon_threadsafe(self._control, query, device, payload)
 
         self._extra.append(s.declare_queryable(control_key(self.prefix), on_query))
@@ -397,7 +404,7 @@ class WorkerNode(LiveManager):
             else:
                 self.held.renewed(name, epoch, sent_mono)
         # rows of ours no longer held here (dropped by the loop): let them go now
-        stray = [d for d in kept if d not in self.held.epochs]
+        stray = [d for d in kept if d not in self.held.epochs and d not in self._claiming]
         if stray:
             with engine.begin() as conn:
                 lease.release_sync(conn, holder, stray)
@@ -447,6 +454,8 @@ class WorkerNode(LiveManager):
         log.info("device %s: lease taken (epoch %d)", name, self.held.epochs[name])
         self._first_unheld.pop(name, None)
         self._worker_for(name)
+        if name in self.announced:  # its token came before the lease: online by it, as in
+            super()._on_token(name, True)  # the one process (not only while data flows)
         asyncio.get_running_loop().create_task(self._reconcile([name]))
 
     def _lose(self, name: str, why: str) -> None:
@@ -487,7 +496,8 @@ class WorkerNode(LiveManager):
         active = {name: (s, code) for s, name, code in rows}
         for name in names:
             w = self.workers.get(name)
-            if w is None or name in self._resuming or not self.held.valid(name):
+            busy = self._resuming.get(name)
+            if w is None or (busy is not None and busy.locked()) or not self.held.valid(name):
                 continue
             running = w.live.session_id
             want = active.get(name)
@@ -513,13 +523,11 @@ class WorkerNode(LiveManager):
     async def _take_session(self, w: DeviceWorker, info: SessionInfo, patient: str | None) -> None:
         """Start (or take over) ``info`` on ``w``, once: the query of the API node and the
         reconciliation with the database may both ask for it."""
-        if w.name in self._resuming:
-            return
-        self._resuming.add(w.name)
-        try:
+        lock = self._resuming.get(w.name)
+        if lock is None:
+            lock = self._resuming[w.name] = asyncio.Lock()
+        async with lock:  # a second asker waits for the first: answered once it runs
             await self._start_or_resume(w, info, patient)
-        finally:
-            self._resuming.discard(w.name)
 
     async def _start_or_resume(
         self, w: DeviceWorker, info: SessionInfo, patient: str | None
@@ -670,7 +678,41 @@ class WorkerNode(LiveManager):
     def _control(self, query: zenoh.Query, device: str, payload: bytes) -> None:
         asyncio.get_running_loop().create_task(self._answer(query, device, payload))
 
+    async def _claim(self, device: str) -> bool:
+        """Take ``device``'s lease now if it is free: a session is starting on a device that
+        has announced itself but sent nothing yet (or not for long), so that its first
+        messages find a holder with the session running. Every worker that is not falling
+        behind tries; the database's conditional update picks one."""
+        if device in self.held.epochs:
+            return True
+        if self.behind:
+            return False
+        if not self.admission.allows(device):  # a registry row is an admission (an admin's)
+            async with self.database.session() as db:
+                row = await get_device(db, device)
+            if row is None or is_removed(row):
+                return False
+            self.admission.admit(device)
+        sent_mono, sent_wall = time.monotonic(), time.time()
+        # until granted here, the lease thread must not take the new row for a stray one
+        self._claiming.add(device)
+        try:
+            async with self.database.transaction() as db:
+                epoch = await lease.acquire(db, device, self.held.holder, sent_wall)
+            if epoch is not None and device not in self.held.epochs:
+                self.held.granted(device, epoch, sent_mono)
+                self._gain(device)
+        except Exception:
+            log.warning("device %s: lease not taken", device, exc_info=True)
+            return False
+        finally:
+            self._claiming.discard(device)
+        return device in self.held.epochs
+
     async def _answer(self, query: zenoh.Query, device: str, payload: bytes) -> None:
+        if device not in self.held.epochs and not await self._claim(device):
+            query.drop()  # type: ignore[no-untyped-call]  # another worker's: no reply
+            return
         try:
             result = await self._command(device, orjson.loads(payload))
             reply: dict[str, Any] = {"ok": True, "result": result}
@@ -680,7 +722,7 @@ class WorkerNode(LiveManager):
             log.exception("device %s: command failed", device)
             reply = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
         try:
-            query.reply(query.key_expr, orjson.dumps(reply))
+            query.reply(query.key_expr, orjson.dumps(reply, option=orjson.OPT_SERIALIZE_NUMPY))
         except Exception:
             log.warning("device %s: command answered too late", device, exc_info=True)
         finally:
@@ -714,6 +756,11 @@ class WorkerNode(LiveManager):
                 w.command(SetNominal(msg["session_id"], msg["point"], msg["from_estimate"])),
                 COMMAND_TIMEOUT_S,
             )
+        if op == "report":  # a running session's report so far (exports, the dashboard)
+            return await self.live_report(msg["session_id"], device)
+        if op == "flush":  # its files as of now (exports of a running session)
+            await self.flush_session(msg["session_id"], device)
+            return None
         raise ValueError(f"unknown command {op!r}")
 
 

@@ -154,7 +154,7 @@ async def _complete(state: State, session: Session) -> Path:
     manager = _manager(state)
     if session.status == "active":
         if manager is not None:
-            manager.flush_session(session.id, session.device.name)
+            await manager.flush_session(session.id, session.device.name)
     elif await files.ensure_outputs(path, session.params, session.device.name) is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, "the session's recording is missing")
     if not path.exists():
@@ -169,7 +169,7 @@ async def _report_of(state: State, session: Session) -> tuple[dict[str, Any], bo
     report: dict[str, Any] | None
     if provisional:
         manager = _manager(state)
-        report = manager.live_report(session.id, session.device.name) if manager else None
+        report = await manager.live_report(session.id, session.device.name) if manager else None
         if report is None:
             raise HTTPException(status.HTTP_409_CONFLICT, "the live side does not run it")
     else:

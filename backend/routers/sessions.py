@@ -117,6 +117,7 @@ async def create_session(
         {"patient_id": patient.id, "device": device.name},
     )
     await db.commit()
+    await state.live.session_committed(session_info(session))
     return session_out(session)
 
 

@@ -365,6 +365,9 @@ class RecordingLive:
         self.calls.append(("started", session))
         return f"recordings/session-{session.id}.jsonl"
 
+    async def session_committed(self, session: SessionInfo) -> None:
+        self.calls.append(("committed", session))
+
     async def session_stopped(self, session: SessionInfo) -> dict[str, Any] | None:
         self.calls.append(("stopped", session.id))
         return {"cycles": 0, "compensatory": 0}
@@ -394,6 +397,9 @@ async def test_live_hooks(
     kind, info = live.calls[0]
     assert kind == "started" and (info.id, info.device, info.patient_id) == (sid, "rig-1", pid)
     assert info.params["tolerance_m"] == 0.12
+    kind, committed = live.calls[1]  # after the commit: the same session, its recording set
+    assert kind == "committed" and committed.id == sid
+    assert committed.recording_path == f"recordings/session-{sid}.jsonl"
 
     r = await client.put(
         f"/api/sessions/{sid}/nominal-shoulder", json={"source": "estimate"}, headers=admin

@@ -130,7 +130,9 @@ def run_service(settings: Settings) -> _Running:
     )
     thread = threading.Thread(target=server.run, name="service", daemon=True)
     thread.start()
-    wait_for(lambda: server.started or not thread.is_alive(), what="service start")
+    # with workers, the API node waits for their processes (imports: slow on a loaded box)
+    wait = 20.0 if not settings.workers else 90.0
+    wait_for(lambda: server.started or not thread.is_alive(), wait, what="service start")
     assert server.started, "the service did not start"
     return _Running(server, thread, app)
 
@@ -152,6 +154,23 @@ def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
             zenoh_listen=f"tcp/127.0.0.1:{free_port()}",
             cookie_secure=False,
             admit=["*"],  # every device name, as a test harness publishes many
+        )
+    )
+
+
+@pytest.fixture(scope="module")
+def workers_service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
+    """The scaled-out service: the API node (``rehab serve --workers 2`` in this process,
+    so that a test can read its 3D view) and two real ``rehab worker`` processes."""
+    data = tmp_path_factory.mktemp("live-workers")
+    yield from _service(
+        Settings(
+            data_dir=data,
+            port=free_port(),
+            zenoh_listen=f"tcp/127.0.0.1:{free_port()}",
+            cookie_secure=False,
+            admit=["*"],
+            workers=2,
         )
     )
 

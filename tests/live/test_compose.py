@@ -197,3 +197,24 @@ def test_the_service_is_an_api_node_beside_the_workers() -> None:
     services = compose()["services"]
     assert "worker" in services
     assert serve_args(services["rehab"]["command"]).workers == 0
+
+
+def test_serve_runs_workers_by_default(monkeypatch: Any) -> None:
+    """`rehab serve`: one worker process per core unless told otherwise; --single-process
+    keeps every pipeline in the API's process (Settings.workers unset)."""
+    from backend.live.gateway import default_workers
+
+    monkeypatch.delenv("REHAB_WORKERS", raising=False)
+
+    def workers(*flags: str) -> int | None:
+        args = serve_args(["rehab", "serve", *flags])
+        return cli_live.serve_workers(args, cli_live.settings_from_args(args))
+
+    assert workers() == default_workers() >= 1
+    assert workers("--workers", "3") == 3
+    assert workers("--workers", "0") == 0
+    assert workers("--workers", "auto") == default_workers()
+    assert workers("--single-process") is None
+    monkeypatch.setenv("REHAB_WORKERS", "5")
+    assert workers() == 5
+    assert workers("--single-process") is None

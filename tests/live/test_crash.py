@@ -66,7 +66,8 @@ class ServiceProcess:
             except httpx.HTTPError:
                 return False
 
-        wait_for(healthy, timeout=60, what="service up")
+        # the default `rehab serve`: the API node waits for its worker processes
+        wait_for(healthy, timeout=120, what="service up")
 
     def kill(self) -> None:
         assert self.proc is not None

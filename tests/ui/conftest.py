@@ -107,7 +107,9 @@ def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
         )  # fmt: skip
     url = f"http://127.0.0.1:{port}"
     try:
-        deadline = time.monotonic() + 60
+        # the default `rehab serve`: healthy once its worker processes are up (slow to
+        # import on a loaded machine: 46 s seen at load 10)
+        deadline = time.monotonic() + 150
         while True:
             if proc.poll() is not None:
                 pytest.fail(f"rehab serve exited:\n{log.read_text()}")
