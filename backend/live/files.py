@@ -21,14 +21,25 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any
 
+from backend import analysis_wearable
 from backend.analysis import CSV_HEADER, DETAILS_HEADER, analyze, dump_report
+from backend.analysis_wearable import JOINTS_HEADER
 from estimators.params import PipelineParams
 from protocol import recording
 
 log = logging.getLogger(__name__)
 
 RECORDINGS_DIR = "recordings"
+ROBOT_CSV = (("estimates.csv", CSV_HEADER), ("details.csv", DETAILS_HEADER))
+WEARABLE_CSV = (("joints.csv", JOINTS_HEADER),)
 SUFFIX = ".jsonl.gz"
+
+
+def csv_of(params: object) -> tuple[tuple[str, str], ...]:
+    """The live CSV files of a session with these parameters (robot or wearable)."""
+    from estimators.wearable.params import WearableParams
+
+    return WEARABLE_CSV if isinstance(params, WearableParams) else ROBOT_CSV
 
 
 def recording_relpath(session_id: int) -> str:
@@ -65,7 +76,7 @@ class LineSink(list[str]):
     :meth:`flush`, so a session of hours does not hold its CSV in memory and a poll does not
     pay for a file write."""
 
-    def __init__(self, fh: IO[str]) -> None:
+    def __init__(self, fh: IO[str] | None) -> None:
         super().__init__()
         self._fh = fh
         self._n = 0
@@ -81,7 +92,9 @@ class LineSink(list[str]):
         self._n += 1
 
     def flush(self) -> None:
-        if self._pending:
+        if self._pending and self._fh is None:
+            self._pending.clear()
+        elif self._pending and self._fh is not None:
             self._fh.write("\n".join(self._pending))
             self._fh.write("\n")
             self._pending.clear()
@@ -93,9 +106,17 @@ class LineSink(list[str]):
 class SessionFiles:
     """The files of one running session (opened at start, closed at stop)."""
 
-    def __init__(self, data_dir: Path, session_id: int, staging: str | None = None) -> None:
+    def __init__(
+        self,
+        data_dir: Path,
+        session_id: int,
+        staging: str | None = None,
+        csv: tuple[tuple[str, str], ...] | None = None,
+    ) -> None:
         """``staging``: a takeover's files, written beside the session's under this suffix
-        and put in their place by :meth:`promote` once the recording is replayed."""
+        and put in their place by :meth:`promote` once the recording is replayed.
+        ``csv``: the live CSV files as (name, header); default estimates.csv and details.csv
+        (a wearable session: joints.csv, :data:`WEARABLE_CSV`)."""
         self.relpath = recording_relpath(session_id)
         self.recording_path = data_dir / self.relpath
         self.out = outputs_dir(self.recording_path)
@@ -116,12 +137,16 @@ class SessionFiles:
         # level 1: a third of level 6's CPU for ~20 % more bytes (the live loop is the
         # scarce resource; a recording can be recompressed offline)
         self.recorder = recording.Writer(rec, "x", compresslevel=1)
-        self._est = open(out / "estimates.csv", "x", encoding="utf-8")  # noqa: SIM115
-        self._det = open(out / "details.csv", "x", encoding="utf-8")  # noqa: SIM115
-        self._est.write(CSV_HEADER + "\n")
-        self._det.write(DETAILS_HEADER + "\n")
-        self.estimates = LineSink(self._est)
-        self.details = LineSink(self._det)
+        self._fhs: list[IO[str]] = []
+        self.sinks: dict[str, LineSink] = {}
+        for name, header in csv or ROBOT_CSV:
+            fh = open(out / name, "x", encoding="utf-8")  # noqa: SIM115
+            fh.write(header + "\n")
+            self._fhs.append(fh)
+            self.sinks[name] = LineSink(fh)
+        # a wearable session's files have no estimates/details: these sinks then keep nothing
+        self.estimates = self.sinks.get("estimates.csv", LineSink(None))
+        self.details = self.sinks.get("details.csv", LineSink(None))
         self.closed = False
 
     def promote(self) -> None:
@@ -152,20 +177,20 @@ class SessionFiles:
         """Everything so far to the OS (the service does it every 0.25 s)."""
         if not self.closed:
             self.recorder.flush()
-            self.estimates.flush()
-            self.details.flush()
-            self._est.flush()
-            self._det.flush()
+            for sink in self.sinks.values():
+                sink.flush()
+            for fh in self._fhs:
+                fh.flush()
 
     def close(self, report: dict[str, Any] | None) -> None:
         if self.closed:
             return
         self.closed = True
-        self.estimates.flush()
-        self.details.flush()
+        for sink in self.sinks.values():
+            sink.flush()
         self.recorder.close()
-        self._est.close()
-        self._det.close()
+        for fh in self._fhs:
+            fh.close()
         if report is not None:
             (self.out / "report.json").write_text(dump_report(report))
 
@@ -175,6 +200,9 @@ class SessionFiles:
 
 def regenerate(recording_path: Path, params: dict[str, Any], device: str) -> dict[str, Any]:
     """``rehab analyze`` of a session's recording into its directory; returns the report."""
+    if analysis_wearable.is_wearable(params):
+        wp = analysis_wearable.load_params(params)
+        return analysis_wearable.analyze(recording_path, wp, outputs_dir(recording_path), device)
     _, report = analyze(
         recording_path, PipelineParams.from_json(params), outputs_dir(recording_path), device=device
     )

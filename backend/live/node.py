@@ -42,11 +42,19 @@ from backend.live import files, lease
 from backend.live.devices import DeviceStats
 from backend.live.ingest import RawMessage
 from backend.live.manager import COMMAND_TIMEOUT_S, LiveManager
-from backend.live.run import LiveRun, SessionContext, rows_ready
-from backend.live.worker import DeviceWorker, SetNominal, StartSession, StopSession
+from backend.live.run import LiveRun, SessionContext, rows_ready, session_params
+from backend.live.wearable_run import JointsOut, WearableLiveRun
+from backend.live.worker import (
+    AnyRun,
+    DeviceWorker,
+    RomTestCommand,
+    SetNominal,
+    StartSession,
+    StopSession,
+    new_run,
+)
 from backend.settings import Settings
 from estimators.output import Output
-from estimators.params import PipelineParams
 from estimators.verdicts import CycleVerdict
 from protocol import keys, recording
 
@@ -99,13 +107,13 @@ def _replay_lines(path: Path) -> Iterator[tuple[str, bytes]]:
             yield key, bytes(payload)
 
 
-def replay(run: LiveRun, path: Path, prefix: str) -> list[tuple[int, CycleVerdict]]:
+def replay(run: AnyRun, path: Path, prefix: str) -> list[tuple[int, CycleVerdict]]:
     """The recording's complete lines through ``run`` (into its files, as received), with
     the bookkeeping a live worker does on its outputs; returns the cycles (index, verdict)."""
     cycles: list[tuple[int, CycleVerdict]] = []
 
     def absorb(out: Output | None) -> None:
-        if out is None:
+        if out is None or not isinstance(run, LiveRun):
             return
         if out.n:
             run.converged = bool(out.rows["heading_converged"][-1])
@@ -121,10 +129,13 @@ def replay(run: LiveRun, path: Path, prefix: str) -> list[tuple[int, CycleVerdic
         except keys.KeyError_:
             kind = "unknown"
         run.ingest(RawMessage(key, payload, len(payload), 0.0, kind))
-        if run.fed_since_poll and rows_ready(run.pipeline):
+        if isinstance(run, WearableLiveRun):
+            run.poll()  # its rows into the staged joints.csv
+        elif run.fed_since_poll and rows_ready(run.pipeline):
             absorb(run.poll())
     if run.fed_since_poll:
-        absorb(run.poll())
+        out = run.poll()
+        absorb(out if not isinstance(out, JointsOut) else None)
     return cycles
 
 
@@ -455,11 +466,13 @@ class WorkerNode(LiveManager):
     ) -> None:
         if w.live.session_id == info.id:
             return
-        params = PipelineParams.from_json(dict(info.params))
+        params = session_params(dict(info.params))
         context = SessionContext(info, params, patient)
         path = self.settings.data_dir / files.recording_relpath(info.id)
         if not path.exists():
-            session_files = files.SessionFiles(self.settings.data_dir, info.id)
+            session_files = files.SessionFiles(
+                self.settings.data_dir, info.id, csv=files.csv_of(params)
+            )
             await asyncio.wait_for(w.command(StartSession(context, session_files)), 30)
             self._started_at[info.id] = time.monotonic()
             return
@@ -472,8 +485,13 @@ class WorkerNode(LiveManager):
         w.paused = True
         t0 = time.monotonic()
         try:
-            staged = files.SessionFiles(self.settings.data_dir, sid, staging=f"epoch{epoch}")
-            run = LiveRun(name, self.prefix, DeviceStats(name), context, staged)
+            staged = files.SessionFiles(
+                self.settings.data_dir,
+                sid,
+                staging=f"epoch{epoch}",
+                csv=files.csv_of(context.params),
+            )
+            run = new_run(name, self.prefix, DeviceStats(name), context, staged)
             try:
                 cycles = await asyncio.to_thread(replay, run, path, self.prefix)
             except BaseException:
@@ -577,6 +595,11 @@ class WorkerNode(LiveManager):
         if op == "nominal":
             return await asyncio.wait_for(
                 w.command(SetNominal(msg["session_id"], msg["point"], msg["from_estimate"])),
+                COMMAND_TIMEOUT_S,
+            )
+        if op == "rom":
+            return await asyncio.wait_for(
+                w.command(RomTestCommand(msg["session_id"], msg.get("movement"))),
                 COMMAND_TIMEOUT_S,
             )
         raise ValueError(f"unknown command {op!r}")
