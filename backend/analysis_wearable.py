@@ -202,6 +202,31 @@ def rom(rows: tracker.Rows) -> dict[str, dict[str, float | None]]:
     return out
 
 
+CAMERA_DROPOUT_S = 0.5  # rows without a camera position this long, after one had some
+
+
+class CameraWatch:
+    """Counts the camera's dropouts in the rows (sample time): a run of rows without a
+    camera position (flag ``camera_used`` clear) of at least :data:`CAMERA_DROPOUT_S`, once
+    the camera had been used. The same count fed all rows at once or poll by poll."""
+
+    def __init__(self) -> None:
+        self.seen = False  # the camera was used once
+        self.last_used: float = -math.inf
+        self.out = False  # in a dropout now
+        self.dropouts = 0
+
+    def update(self, t: np.ndarray, flags: np.ndarray) -> CameraWatch:
+        used = (flags.astype(np.int64) & tracker.CAMERA_USED) > 0
+        for ti, u in zip(t.tolist(), used.tolist(), strict=True):
+            if u:
+                self.seen, self.last_used, self.out = True, ti, False
+            elif self.seen and not self.out and ti - self.last_used >= CAMERA_DROPOUT_S:
+                self.out = True
+                self.dropouts += 1
+        return self
+
+
 def make_report(
     rows: tracker.Rows,
     state: tracker.TrackerState,
@@ -241,6 +266,7 @@ def make_report(
             "flagged_rows": {
                 name: int(((flags & bit) > 0).sum()) for bit, name in _FLAG_NAMES.items()
             },
+            "camera_dropouts": CameraWatch().update(rows["t"], flags).dropouts,
         },
         "params": {
             "side": params.side,

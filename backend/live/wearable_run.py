@@ -136,6 +136,7 @@ class WearableLiveRun:
         self.rom_tests: list[RomTest] = []
         self.rom_active: RomTest | None = None
         self.flagged: dict[str, int] = {}  # rows per flag (forearm_missing, camera_stale...)
+        self.camera = aw.CameraWatch()
 
     @property
     def session_id(self) -> int | None:
@@ -190,6 +191,7 @@ class WearableLiveRun:
         if self.rom_active is not None:
             self.rom_active.take(rows)
         flags = rows["flags"].astype(np.int64)
+        self.camera.update(rows["t"], flags)
         for bit, name in aw._FLAG_NAMES.items():
             k = int(((flags & bit) > 0).sum())
             if k:
@@ -245,10 +247,11 @@ class WearableLiveRun:
             "side": self.params.side,
             "rom_active": self.rom_active.as_dict() if self.rom_active else None,
             "rom_tests": [t.as_dict() for t in self.rom_tests],
-            "messages": _messages(flags),
+            "messages": _messages(flags, self.camera.out),
             "quality": {
                 "rejected": dict(sorted((self.run.rejected + self.run.state.rejected).items())),
                 "flagged_rows": dict(sorted(self.flagged.items())),
+                "camera_dropouts": self.camera.dropouts,
             },
         }
 
@@ -280,5 +283,12 @@ MESSAGES = {  # what a flag of the newest row means, for the therapist
 }
 
 
-def _messages(flags: int) -> list[str]:
-    return [text for bit, text in MESSAGES.items() if flags & bit]
+CAMERA_OUT = (
+    "The camera dropped out: the arm's turn about the vertical is carried by the gyros "
+    "alone and its uncertainty grows."
+)
+
+
+def _messages(flags: int, camera_out: bool) -> list[str]:
+    out = [text for bit, text in MESSAGES.items() if flags & bit]
+    return [*out, CAMERA_OUT] if camera_out else out

@@ -6,6 +6,7 @@ flagged and counted, never a crash or a silently wrong angle."""
 
 from __future__ import annotations
 
+import json
 import math
 import threading
 from pathlib import Path
@@ -196,8 +197,6 @@ def test_bad_wearable_parameters_are_refused(service: Service) -> None:
 
 def stopped_report(service: Service, sid: int) -> dict[str, Any]:
     path = service.data_dir / "recordings" / str(sid) / "report.json"
-    import json
-
     rep: dict[str, Any] = json.loads(path.read_text())
     return rep
 
@@ -213,3 +212,39 @@ def test_recording_is_as_published(service: Service, tmp_path: Path) -> None:
     assert [(k, bytes(p)) for k, p in recording.read(stored)] == [
         (k, bytes(p)) for k, p in recording.read(original)
     ]
+
+
+def test_rom_test_through_the_api(service: Service) -> None:
+    """The therapist asks for maximal flexion: start, the movement, stop; the peak is in the
+    answer, the session's report and its summary."""
+    device = "wlive06"
+    sim = sw.simulate(sw.WearableSimConfig(move="rom", duration_s=8.0, seed=8, device=device))
+    outgoing = prepare(sim.messages)
+    half = next(i for i, o in enumerate(outgoing) if o.key.endswith("upperarm") and _t(o) >= 3.0)
+    with service.publisher() as pub:
+        pub.declare(outgoing)
+        assert pub.wait_for_subscribers(10.0)
+        session = start_wearable(service, device, spec_of(sim.params))
+        sid = session["id"]
+        play(pub, outgoing[:half], 50.0)
+        wait_for(lambda: service.received(device) >= half, what="first part")
+        r = service.api.post(f"/api/sessions/{sid}/rom-test", json={"movement": "shoulder_flexion"})
+        assert r.status_code == 200, r.text
+        assert r.json()["movement"] == "shoulder_flexion" and r.json()["start_t"] > 2.0
+        play(pub, outgoing[half:], 50.0)
+        wait_for(lambda: service.received(device) >= len(outgoing), what="all")
+        wait_for(lambda: (_status(service, device) or {}).get("rom_active"), what="status")
+        r = service.api.delete(f"/api/sessions/{sid}/rom-test")
+        assert r.status_code == 200, r.text
+        test = r.json()
+        assert 135.0 < test["peak_deg"] < 165.0 and test["joint"] == "shoulder_flexion_deg"
+        assert service.api.delete(f"/api/sessions/{sid}/rom-test").status_code == 409
+        bad = service.api.post(f"/api/sessions/{sid}/rom-test", json={"movement": "wiggle"})
+        assert bad.status_code == 422
+    stopped = service.stop(sid)
+    assert stopped["summary"]["rom_tests"] == [test]
+    assert stopped_report(service, sid)["rom_tests"] == [test]
+
+
+def _t(o: Any) -> float:
+    return float(o.at)
