@@ -280,6 +280,33 @@ export interface StatusMsg {
   rates_hz?: { imu?: number; robot?: number };
   tolerance_m?: number;
   max_outside_fraction?: number;
+  // a wearable device (contract §8): confidence per joint angle, what is wrong, ROM tests
+  mode?: "wearable";
+  angles_std_deg?: Record<string, number | null>;
+  angles_sure?: Record<string, boolean>;
+  sure_std_deg?: number;
+  vertical_std_deg?: number | null;
+  messages?: string[];
+  rom_active?: RomTest | null;
+  rom_tests?: RomTest[];
+}
+
+export interface RomTest {
+  movement: string;
+  joint: string;
+  start_t: number | null;
+  end_t: number | null;
+  peak_deg: number | null;
+  peak_t: number | null;
+  rows: number;
+  sure_rows: number;
+}
+
+/** A wearable device's rows: joints.csv's columns, each angle's standard deviation, flags. */
+export interface JointsMsg {
+  type: "joints";
+  device?: string;
+  rows: Record<string, Num[]>;
 }
 
 export interface HelloMsg {
@@ -307,4 +334,4 @@ export interface CycleMsg {
   index?: number;
 }
 
-export type LiveMsg = HelloMsg | StatusMsg | EstimateMsg | StateMsg | CycleMsg;
+export type LiveMsg = HelloMsg | StatusMsg | EstimateMsg | StateMsg | CycleMsg | JointsMsg;
