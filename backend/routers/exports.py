@@ -57,8 +57,8 @@ class ReportCycle(_Open):
 
 class ReportSummary(_Open):
     rows: int
-    cycles: int
-    compensatory_cycles: int
+    cycles: int = 0  # a wearable session has no robot cycles (its movements instead)
+    compensatory_cycles: int = 0
     compensatory_share: float | None = None
     time_outside_share: float | None = None
 

@@ -158,7 +158,7 @@ export function RomTestPanel({ dev, session }: { dev: DeviceLive; session: Sessi
       {active && <Alert kind="info">Recording {label(active.movement)}…</Alert>}
       {error && <Alert kind="error">{error}</Alert>}
       {done.length > 0 && (
-        <table class="table" data-testid="rom-results">
+        <table class="table table--compact" data-testid="rom-results" style={{ width: "100%", tableLayout: "fixed" }}>
           <caption>Tests of this session</caption>
           <thead>
             <tr>
@@ -187,7 +187,9 @@ export function RomTestPanel({ dev, session }: { dev: DeviceLive; session: Sessi
 
 export function WearableNotes({ dev }: { dev: DeviceLive }) {
   const msgs = dev.status?.messages ?? [];
-  const flagged = (dev.status?.quality as { flagged_rows?: Record<string, number> } | undefined)?.flagged_rows ?? {};
+  const all = (dev.status?.quality as { flagged_rows?: Record<string, number> } | undefined)?.flagged_rows ?? {};
+  // camera_used is no fault: the rows the camera corrected
+  const flagged = Object.fromEntries(Object.entries(all).filter(([k]) => k !== "camera_used"));
   return (
     <>
       {msgs.map((m) => (
