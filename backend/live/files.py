@@ -21,7 +21,6 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any
 
-from backend import analysis_wearable
 from backend.analysis import CSV_HEADER, DETAILS_HEADER, analyze, dump_report
 from backend.analysis_wearable import JOINTS_HEADER
 from estimators.params import PipelineParams
@@ -199,10 +198,17 @@ class SessionFiles:
 
 
 def regenerate(recording_path: Path, params: dict[str, Any], device: str) -> dict[str, Any]:
-    """``rehab analyze`` of a session's recording into its directory; returns the report."""
-    if analysis_wearable.is_wearable(params):
-        wp = analysis_wearable.load_params(params)
-        return analysis_wearable.analyze(recording_path, wp, outputs_dir(recording_path), device)
+    """``rehab analyze`` of a session's recording into its directory; returns the report
+    (a wearable session's, contract §8, by its parameters' ``"mode"``)."""
+    if params.get("mode") == "wearable":
+        from backend import analysis_wearable
+
+        return analysis_wearable.analyze(
+            recording_path,
+            analysis_wearable.load_params(params),
+            outputs_dir(recording_path),
+            device,
+        )
     _, report = analyze(
         recording_path, PipelineParams.from_json(params), outputs_dir(recording_path), device=device
     )

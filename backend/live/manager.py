@@ -50,7 +50,7 @@ from backend.live.worker import (
     SetNominal,
     StartSession,
     StopSession,
-    session_summary,
+    summary_of,
 )
 from backend.live.zenoh_io import RawSample, ZenohIO
 from backend.settings import Settings
@@ -548,6 +548,6 @@ async def recover_session(database: Database, data_dir: Path, session_id: int) -
             await db.execute(
                 update(Session)
                 .where(Session.id == session_id)
-                .values(summary=session_summary(report))
+                .values(summary=summary_of(report))
             )
     log.info("interrupted session %s: outputs complete", session_id)

@@ -89,12 +89,11 @@ class SetNominal(Command):
 
 def session_summary(report: dict[str, Any]) -> dict[str, Any]:
     """What the sessions table keeps of a report (the report itself is a file)."""
-    if report.get("mode") == "wearable":
-        return wearable_summary(report)
     return {
         **report["summary"],
-        "heading_converged_t": report["heading"]["converged_t"],
-        "shoulder_displacement_m": report["shoulder_displacement_m"],
+        # .get: a wearable session's report (contract §8) has no heading nor shoulder
+        "heading_converged_t": report.get("heading", {}).get("converged_t"),
+        "shoulder_displacement_m": report.get("shoulder_displacement_m"),
         # range of motion, for the patient's history without reading every report
         "elbow_flexion_deg": report.get("elbow_flexion_deg"),
         "upper_arm_elevation_deg": report.get("upper_arm_elevation_deg"),
@@ -104,10 +103,17 @@ def session_summary(report: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def summary_of(report: dict[str, Any]) -> dict[str, Any]:
+    """:func:`session_summary`, and a wearable session's own keys (:func:`wearable_summary`)."""
+    out = session_summary(report)
+    if report.get("mode") == "wearable":
+        out.update(wearable_summary(report))
+    return out
+
+
 def wearable_summary(report: dict[str, Any]) -> dict[str, Any]:
-    """A wearable session's: its range of motion per joint and its ROM tests (§8 names)."""
+    """A wearable session's: its range of motion per joint (§8 names), its ROM tests."""
     return {
-        **report["summary"],
         "mode": "wearable",
         "rom": report["rom"],
         "rom_tests": report.get("rom_tests", []),
@@ -523,7 +529,7 @@ class DeviceWorker:
         self.live = new_run(self.name, self.prefix, self.stats, wearable=wearable)
         self._hub.end_session(session_id)
         self._on_change(self.name)
-        return session_summary(report)
+        return summary_of(report)
 
     def _rom_test(self, cmd: RomTestCommand) -> dict[str, Any] | None:
         live = self.live
