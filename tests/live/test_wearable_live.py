@@ -39,10 +39,10 @@ def spec_of(params: dict[str, Any]) -> dict[str, Any]:
 class JointsListener:
     """A subscriber of ``rehab/<device>/joints``, as an independent tool would be."""
 
-    def __init__(self, service: Service, device: str) -> None:
+    def __init__(self, endpoint: str, device: str) -> None:
         conf = zenoh.Config()
         conf.insert_json5("mode", '"peer"')
-        conf.insert_json5("connect/endpoints", f'["{service.endpoint}"]')
+        conf.insert_json5("connect/endpoints", f'["{endpoint}"]')
         conf.insert_json5("scouting/multicast/enabled", "false")
         self.session = zenoh.open(conf)
         self.payloads: list[bytes] = []
@@ -105,7 +105,7 @@ def offline(service: Service, stopped: dict[str, Any], out: Path) -> dict[str, A
 def test_wearable_session_live_equals_offline(service: Service, tmp_path: Path) -> None:
     device = "wlive01"
     sim = sw.simulate(sw.WearableSimConfig(move="reaching", duration_s=20.0, seed=3, device=device))
-    listener = JointsListener(service, device)
+    listener = JointsListener(service.endpoint, device)
     try:
         stopped, status = run_session(service, sim, spec_of(sim.params), listener=listener)
         assert stopped["status"] == "stopped"
