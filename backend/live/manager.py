@@ -546,8 +546,6 @@ async def recover_session(database: Database, data_dir: Path, session_id: int) -
                 )
         if not have_summary:
             await db.execute(
-                update(Session)
-                .where(Session.id == session_id)
-                .values(summary=summary_of(report))
+                update(Session).where(Session.id == session_id).values(summary=summary_of(report))
             )
     log.info("interrupted session %s: outputs complete", session_id)
