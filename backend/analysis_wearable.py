@@ -7,7 +7,6 @@ cannot be used is counted by reason in the report, never a crash.
 
 from __future__ import annotations
 
-import json
 import math
 from collections import Counter
 from pathlib import Path
@@ -16,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from backend import clinical
+from backend.analysis import dump_report
 from estimators.wearable import tracker
 from estimators.wearable.params import WearableParams, WearableParamsError
 from protocol import keys, recording, wire
@@ -39,56 +39,120 @@ def is_wearable(obj: Any) -> bool:
     return isinstance(obj, dict) and obj.get("mode") == "wearable"
 
 
+class WearableRun:
+    """One wearable device's analysis, fed one recording line at a time: what
+    :func:`analyze` runs over a file and the live service runs over a session's messages
+    (the same lines, in the same order, decoded the same way: the same joints, by
+    construction). Rows are kept in parts; :meth:`take` hands over those not taken yet."""
+
+    def __init__(
+        self, params: WearableParams, device: str | None = None, prefix: str = keys.DEFAULT_PREFIX
+    ) -> None:
+        self.params = params
+        self.device = device  # None: the first device with an IMU or camera line
+        self.prefix = prefix
+        self.state = tracker.initial_state(params)
+        self.rejected: Counter[str] = Counter()
+        self.parts: list[tracker.Rows] = []
+        self.lines = 0
+        self._taken = 0  # parts handed over by take()
+        self.finished = False
+        self.last_reason = ""  # of the newest rejection
+        self.cycle_starts: list[float] = []  # contract cycle_start events
+
+    def reject(self, reason: str) -> None:
+        self.rejected[reason] += 1
+        self.last_reason = reason
+
+    def feed_line(self, key: str | None, payload: Any) -> wire.Message | None:
+        """One recording line; returns the decoded message if it was used."""
+        self.lines += 1
+        if key is None:
+            self.reject("malformed_line")
+            return None
+        try:
+            parsed = keys.parse(key, self.prefix)
+        except keys.KeyError_:
+            self.reject("unknown_key")
+            return None
+        if self.device is None and parsed.kind in ("imu", "camera"):
+            self.device = parsed.device
+        if parsed.device != self.device:
+            self.reject("other_device")
+            return None
+        try:
+            msg = wire.decode(key, payload, self.prefix)
+        except wire.WireError as exc:
+            self.reject(exc.reason)
+            return None
+        return msg if self.feed(msg) else None
+
+    def feed(self, msg: wire.Message) -> bool:
+        """A decoded message into the tracker; False (counted) if this mode has no use for it."""
+        params, state = self.params, self.state
+        if isinstance(msg, wire.ImuMessage) and msg.segment in ("upperarm", "forearm"):
+            kind: tracker.Kind = "upperarm" if msg.segment == "upperarm" else "forearm"
+            rows, self.state = tracker.feed(params, state, kind, msg.t, msg.gyr, msg.acc)
+        elif isinstance(msg, wire.CameraMessage):
+            rows, self.state = tracker.feed(params, state, "camera", msg.t, msg.elbow, msg.wrist)
+        elif isinstance(msg, wire.EventMessage) and msg.type == "cycle_start":
+            self.cycle_starts.append(msg.t)  # the movements, if the device marks them
+            return True
+        else:  # a trunk IMU, a robot, an event: counted as the key's kind
+            kind_name = {wire.ImuMessage: "imu", wire.RobotMessage: "robot"}.get(type(msg), "event")
+            self.reject(f"ignored_{kind_name}")
+            return False
+        if len(rows["t"]):
+            self.parts.append(rows)
+        return True
+
+    def finish(self) -> None:
+        """End of data: the upper-arm samples still waiting for a forearm partner."""
+        if self.finished:
+            return
+        self.finished = True
+        rows, self.state = tracker.flush(self.params, self.state)
+        if len(rows["t"]):
+            self.parts.append(rows)
+
+    def take(self) -> tracker.Rows | None:
+        """The rows completed since the last call (None if there are none)."""
+        new = self.parts[self._taken :]
+        if len(self.parts) >= 256:  # all taken now: merged (a part per message costs memory)
+            self.parts = [tracker.concat(self.parts)]
+        self._taken = len(self.parts)
+        if not new:
+            return None
+        return new[0] if len(new) == 1 else tracker.concat(new)
+
+    def rows(self) -> tracker.Rows:
+        return tracker.concat(self.parts)
+
+    def report(self) -> dict[str, Any]:
+        return make_report(
+            self.rows(),
+            self.state,
+            self.rejected,
+            self.device,
+            self.params,
+            self.lines,
+            self.cycle_starts,
+        )
+
+
 def analyze(
     path: str | Path, params: WearableParams, out: str | Path, device: str | None = None
 ) -> dict[str, Any]:
     """Run the wearable tracker over a recording; write joints.csv and report.json."""
-    state = tracker.initial_state(params)
-    parts: list[tracker.Rows] = []
-    rejected: Counter[str] = Counter()
-    chosen = device
-    n_lines = 0
-    cycle_starts: list[float] = []  # contract cycle_start events: the movements, if any
+    run = WearableRun(params, device)
     for key, payload in recording.read(path):
-        n_lines += 1
-        if key is None:
-            rejected["malformed_line"] += 1
-            continue
-        try:
-            parsed = keys.parse(key)
-        except keys.KeyError_:
-            rejected["unknown_key"] += 1
-            continue
-        if chosen is None and parsed.kind in ("imu", "camera"):
-            chosen = parsed.device
-        if parsed.device != chosen:
-            rejected["other_device"] += 1
-            continue
-        try:
-            msg = wire.decode(key, payload)
-        except wire.WireError as exc:
-            rejected[exc.reason] += 1
-            continue
-        if isinstance(msg, wire.ImuMessage) and msg.segment in ("upperarm", "forearm"):
-            kind: tracker.Kind = "upperarm" if msg.segment == "upperarm" else "forearm"
-            rows, state = tracker.feed(params, state, kind, msg.t, msg.gyr, msg.acc)
-        elif isinstance(msg, wire.CameraMessage):
-            rows, state = tracker.feed(params, state, "camera", msg.t, msg.elbow, msg.wrist)
-        elif isinstance(msg, wire.EventMessage) and msg.type == "cycle_start":
-            cycle_starts.append(msg.t)
-            continue
-        else:
-            rejected[f"ignored_{parsed.kind}"] += 1
-            continue
-        parts.append(rows)
-    rows, state = tracker.flush(params, state)
-    parts.append(rows)
-    rows = tracker.concat(parts)
+        run.feed_line(key, payload)
+    run.finish()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    write_joints(rows, out / JOINTS_NAME)
-    report = make_report(rows, state, rejected, chosen, params, n_lines, cycle_starts)
-    (out / REPORT_NAME).write_text(json.dumps(report, indent=2, allow_nan=False) + "\n")
+    write_joints(run.rows(), out / JOINTS_NAME)
+    report = run.report()
+    (out / REPORT_NAME).write_text(dump_report(report))  # the live service's bytes too
     return report
 
 
@@ -96,15 +160,25 @@ def _cell(v: float, digits: int) -> str:
     return "" if not math.isfinite(v) else f"{v:.{digits}f}"
 
 
+JOINTS_HEADER = ",".join(tracker.COLUMNS)
+_DIGITS = (6, *([3] * 5), *([4] * 6))
+
+
+def joint_lines(rows: tracker.Rows) -> list[str]:
+    """joints.csv's lines (no newline) of some rows: empty cells where not available."""
+    cols = [rows[c].tolist() for c in tracker.COLUMNS]
+    return [
+        ",".join(_cell(v, d) for v, d in zip(row, _DIGITS, strict=True))
+        for row in zip(*cols, strict=True)
+    ]
+
+
 def write_joints(rows: tracker.Rows, path: Path) -> None:
     """Contract §8's joints.csv: exact header, empty cells where a value is not available."""
-    digits = [6] + [3] * 5 + [4] * 6
-    cols = [rows[c] for c in tracker.COLUMNS]
     with open(path, "w", encoding="utf-8") as fh:
-        fh.write(",".join(tracker.COLUMNS) + "\n")
-        for i in range(len(cols[0])):
-            fh.write(",".join(_cell(float(c[i]), d) for c, d in zip(cols, digits, strict=True)))
-            fh.write("\n")
+        fh.write(JOINTS_HEADER + "\n")
+        for line in joint_lines(rows):
+            fh.write(line + "\n")
 
 
 def read_joints(path: str | Path) -> dict[str, np.ndarray]:
@@ -137,6 +211,31 @@ def rom(rows: tracker.Rows) -> dict[str, dict[str, float | None]]:
             "p95": round(float(np.percentile(v, 95)), 3),
         }
     return out
+
+
+CAMERA_DROPOUT_S = 0.5  # rows without a camera position this long, after one had some
+
+
+class CameraWatch:
+    """Counts the camera's dropouts in the rows (sample time): a run of rows without a
+    camera position (flag ``camera_used`` clear) of at least :data:`CAMERA_DROPOUT_S`, once
+    the camera had been used. The same count fed all rows at once or poll by poll."""
+
+    def __init__(self) -> None:
+        self.seen = False  # the camera was used once
+        self.last_used: float = -math.inf
+        self.out = False  # in a dropout now
+        self.dropouts = 0
+
+    def update(self, t: np.ndarray, flags: np.ndarray) -> CameraWatch:
+        used = (flags.astype(np.int64) & tracker.CAMERA_USED) > 0
+        for ti, u in zip(t.tolist(), used.tolist(), strict=True):
+            if u:
+                self.seen, self.last_used, self.out = True, ti, False
+            elif self.seen and not self.out and ti - self.last_used >= CAMERA_DROPOUT_S:
+                self.out = True
+                self.dropouts += 1
+        return self
 
 
 def make_report(
@@ -178,6 +277,7 @@ def make_report(
             "flagged_rows": {
                 name: int(((flags & bit) > 0).sum()) for bit, name in _FLAG_NAMES.items()
             },
+            "camera_dropouts": CameraWatch().update(rows["t"], flags).dropouts,
         },
         "params": {
             "side": params.side,

@@ -24,6 +24,7 @@ DEMO_DEVICES = (
     # (device, patient code, what it does)
     ("sim01", "demo-proper", "moves properly"),
     ("sim02", "demo-drift", "drifts into compensation"),
+    ("wear01", "demo-wearable", "wearable: two IMUs and a camera, ROM test movements"),
 )
 # One simulated session each, played in a loop: sim02 drifts into compensation after a
 # minute of proper movement (the paper's 8-minute protocol, shortened for a demo).
@@ -299,6 +300,34 @@ def _stream(
             loop += 1
 
 
+def _stream_wearable(device: str, endpoint: str, speed: float, stop: threading.Event) -> None:
+    """A simulated wearable device (contract §8): the ROM test movements, then reaching, in
+    a loop on a continuous clock (the start at rest in the zero pose, as §8 asks)."""
+    from simulator import wearable as sw
+    from simulator.publish import Publisher, play, prepare
+    from simulator.wearable_moves import rom_duration
+
+    with Publisher.connect(endpoint) as pub:
+        pub.announce(device)
+        loop = 0
+        t0 = 0.0
+        while not stop.is_set():
+            move = "rom" if loop % 2 == 0 else "reaching"
+            duration = rom_duration() if move == "rom" else 60.0
+            cfg = sw.WearableSimConfig(move=move, duration_s=duration, seed=loop, device=device)
+            msgs = [
+                (k, {**p, "t": [t + t0 for t in p["t"]], "seq": p["seq"] + loop * 1_000_000})
+                for k, p in sw.simulate(cfg).messages
+            ]
+            outgoing = prepare(msgs)
+            pub.declare(outgoing)
+            if loop == 0:
+                pub.wait_for_subscribers(10.0)
+            play(pub, outgoing, speed, stop=stop)
+            t0 += duration
+            loop += 1
+
+
 def _continue_seq(
     messages: list[tuple[str, dict[str, Any]]], loop: int
 ) -> list[tuple[str, dict[str, Any]]]:
@@ -400,6 +429,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
                 daemon=True,
                 args=(device, device == "sim02", endpoint, args.speed, stop),
             )
+            if device.startswith("wear"):
+                thread = threading.Thread(
+                    target=_stream_wearable,
+                    name=f"demo-{device}",
+                    daemon=True,
+                    args=(device, endpoint, args.speed, stop),
+                )
             thread.start()
             streams.append(thread)
         print("  Ctrl-C to stop")

@@ -70,6 +70,11 @@ class LiveHooks(Protocol):
         Raise :class:`LiveUnavailable` when there is no estimate to take."""
         ...
 
+    async def rom_test(self, session: SessionInfo, movement: str | None) -> dict[str, Any] | None:
+        """A wearable session's ROM test: start one for ``movement``, or stop the running one
+        (None) and return it with its peak. :class:`LiveUnavailable` if not running."""
+        ...
+
 
 class NoLive:
     """The hooks before a pipeline is wired in: sessions are only records."""
@@ -89,6 +94,9 @@ class NoLive:
         if from_estimate:
             raise LiveUnavailable("no live pipeline: no shoulder estimate to take")
         return point
+
+    async def rom_test(self, session: SessionInfo, movement: str | None) -> dict[str, Any] | None:
+        raise LiveUnavailable("no live pipeline: no joint angles")
 
 
 @dataclass(eq=False)

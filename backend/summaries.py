@@ -17,7 +17,7 @@ from typing import Any
 
 from backend.db.models import Session
 from backend.live import files
-from backend.live.worker import session_summary
+from backend.live.worker import summary_of
 
 log = logging.getLogger(__name__)
 
@@ -46,7 +46,7 @@ def _read_report(path: Path) -> dict[str, Any] | None:
 def from_report(report: dict[str, Any]) -> dict[str, Any] | None:
     """The summary the live side stores when a session stops, from a stored report."""
     try:
-        return session_summary(report)
+        return summary_of(report)
     except (KeyError, TypeError, AttributeError):
         return None  # a report of another shape: leave the session as it is
 

@@ -178,6 +178,14 @@ def format_tables(res: dict[str, Any]) -> str:
 
 
 def cmd(args: argparse.Namespace) -> int:
+    from evaluation import evaluate_wearable as ew
+
+    if ew.is_wearable_analysis(args.analysis):  # contract §8: joints.csv, truth.csv
+        wres = ew.evaluate(args.analysis, args.truth)
+        print(ew.format_tables(wres))
+        if args.json:
+            Path(args.json).write_text(json.dumps(wres, indent=1))
+        return 0
     res = evaluate(args.analysis, load_truth(args.truth))
     print(format_tables(res))
     if args.json:
@@ -189,6 +197,10 @@ def cmd(args: argparse.Namespace) -> int:
 def add_parser(sub: Any) -> None:
     p = sub.add_parser("evaluate", help="compare an analysis with simulator ground truth")
     p.add_argument("analysis", help="directory written by `rehab analyze`")
-    p.add_argument("--truth", required=True, help="truth.npz written by `rehab simulate`")
+    p.add_argument(
+        "--truth",
+        required=True,
+        help="truth.npz written by `rehab simulate` (wearable mode: its truth.csv)",
+    )
     p.add_argument("--json", help="also write the figures as JSON")
     p.set_defaults(func=cmd)

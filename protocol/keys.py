@@ -15,7 +15,7 @@ DEFAULT_PREFIX = "rehab"
 DEVICE_RE = re.compile(r"[A-Za-z0-9_-]{1,64}")
 SEGMENTS = ("upperarm", "forearm", "trunk")
 
-Kind = Literal["imu", "robot", "camera", "event", "estimate", "feedback"]
+Kind = Literal["imu", "robot", "camera", "event", "estimate", "feedback", "joints"]
 INPUT_KINDS: tuple[Kind, ...] = ("imu", "robot", "camera", "event")
 
 
@@ -45,7 +45,7 @@ def parse(key: str, prefix: str = DEFAULT_PREFIX) -> ParsedKey:
         if len(rest) != 3 or rest[2] not in SEGMENTS:
             raise KeyError_(f"key {key!r}: imu needs one segment of {SEGMENTS}")
         return ParsedKey(device, "imu", rest[2])
-    if kind in ("robot", "camera", "event", "estimate", "feedback") and len(rest) == 2:
+    if kind in ("robot", "camera", "event", "estimate", "feedback", "joints") and len(rest) == 2:
         return ParsedKey(device, kind)  # type: ignore[arg-type]
     raise KeyError_(f"key {key!r} is not a contract key")
 
@@ -72,6 +72,11 @@ def estimate(device: str, prefix: str = DEFAULT_PREFIX) -> str:
 
 def feedback(device: str, prefix: str = DEFAULT_PREFIX) -> str:
     return f"{prefix}/{device}/feedback"
+
+
+def joints(device: str, prefix: str = DEFAULT_PREFIX) -> str:
+    """A wearable device's joint angles (contract §8), published by the service."""
+    return f"{prefix}/{device}/joints"
 
 
 def subscription(prefix: str = DEFAULT_PREFIX) -> str:

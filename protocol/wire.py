@@ -579,3 +579,55 @@ def encode_with_prefix(msg: Message, prefix: str) -> tuple[str, dict[str, Any]]:
 def dumps(payload: dict[str, Any]) -> bytes:
     """Compact UTF-8 JSON, refusing NaN (the contract's JSON has none)."""
     return json.dumps(payload, separators=(",", ":"), allow_nan=False).encode("utf-8")
+
+
+# --------------------------------------------------------------------------- joint angles
+
+# Contract §8: the columns of joints.csv, as parallel arrays on ``rehab/<device>/joints``
+JOINT_COLUMNS = (
+    "t",
+    "shoulder_flexion_deg",
+    "shoulder_abduction_deg",
+    "shoulder_rotation_deg",
+    "elbow_flexion_deg",
+    "forearm_pronation_deg",
+    "elbow_x",
+    "elbow_y",
+    "elbow_z",
+    "wrist_x",
+    "wrist_y",
+    "wrist_z",
+)
+
+
+def joints_payload(rows: dict[str, Any], extra: Iterable[str] = ()) -> bytes:
+    """The joints payload of some rows (column → (N,) floats): the §8 columns, then the
+    ``extra`` ones (an extension, e.g. each angle's confidence), as parallel arrays; a value
+    that is not available (NaN) is ``null``."""
+    out: dict[str, list[float | None]] = {}
+    for c in (*JOINT_COLUMNS, *extra):
+        out[c] = [v if math.isfinite(v) else None for v in np.asarray(rows[c], float).tolist()]
+    return orjson.dumps(out)
+
+
+def decode_joints(payload: bytes | str) -> dict[str, FloatArray]:
+    """A joints payload back to column → (N,) float64 (``null`` → NaN); :class:`WireError`
+    if a §8 column is missing or the arrays are not parallel."""
+    obj = _load(payload)
+    out: dict[str, FloatArray] = {}
+    n: int | None = None
+    for c, v in obj.items():
+        if not isinstance(v, list):
+            raise WireError("bad_type", f"{c!r} must be an array")
+        try:
+            a = np.array([math.nan if x is None else x for x in v], dtype=np.float64)
+        except (TypeError, ValueError):
+            raise WireError("bad_type", f"{c!r} must hold numbers or null") from None
+        if n is not None and len(a) != n:
+            raise WireError("bad_shape", f"{c!r} has {len(a)} values, not {n}")
+        n = len(a)
+        out[c] = a
+    missing = [c for c in JOINT_COLUMNS if c not in out]
+    if missing:
+        raise WireError("missing_field", f"joints payload lacks {', '.join(missing)}")
+    return out

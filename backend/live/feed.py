@@ -17,6 +17,11 @@ Overlay feed (``/api/ws/overlay``): ``state`` and ``cycle`` as above, ``status``
 ``t, wrist_x..z, shoulder_displacement_m, dx, dy, state``.
 
 Estimate rows are parallel arrays, nulls where a value is not available (NaN).
+
+A wearable device (contract §8) sends ``{"type": "joints", "device", "rows": {column: [...]}}``
+instead of ``estimate`` (columns :data:`JOINTS_COLUMNS`: joints.csv's, each angle's standard
+deviation, flags), and its ``status`` carries ``mode: "wearable"``, ``angles_std_deg``,
+``angles_sure``, ``messages`` and the ROM tests (:meth:`WearableLiveRun.status`).
 """
 
 from __future__ import annotations
@@ -247,6 +252,40 @@ def join(blocks: Sequence[Block]) -> Block:
             else np.concatenate([np.asarray(c, dtype=np.int8) for c in convs])
         )
     return Block(first.names, values, [s for b in blocks for s in b.state], converged)
+
+
+# A wearable device's rows (``{"type": "joints", "device", "rows": {column: [...]}}``):
+# contract §8's columns, then each angle's standard deviation (its confidence) and flags
+JOINTS_EXTRA = (
+    "shoulder_flexion_std_deg",
+    "shoulder_abduction_std_deg",
+    "shoulder_rotation_std_deg",
+    "elbow_flexion_std_deg",
+    "forearm_pronation_std_deg",
+    "vertical_std_deg",
+    "flags",
+)
+JOINTS_COLUMNS = (
+    "t",
+    "shoulder_flexion_deg",
+    "shoulder_abduction_deg",
+    "shoulder_rotation_deg",
+    "elbow_flexion_deg",
+    "forearm_pronation_deg",
+    "elbow_x",
+    "elbow_y",
+    "elbow_z",
+    "wrist_x",
+    "wrist_y",
+    "wrist_z",
+    *JOINTS_EXTRA,
+)
+
+
+def joints_block(rows: Mapping[str, NDArray[Any]]) -> Block:
+    """A wearable run's rows as a block (no pipeline state: ``state`` is null)."""
+    values: list[Column] = [np.asarray(rows[c], dtype=np.float64).tolist() for c in JOINTS_COLUMNS]
+    return Block(JOINTS_COLUMNS, values, [None] * len(rows["t"]))
 
 
 def dumps(obj: Any) -> bytes:

@@ -23,13 +23,23 @@ from pathlib import Path
 from typing import IO, Any, NamedTuple
 
 from backend.analysis import CSV_HEADER, DETAILS_HEADER, analyze, dump_report
+from backend.analysis_wearable import JOINTS_HEADER
 from estimators.params import PipelineParams
 from protocol import recording
 
 log = logging.getLogger(__name__)
 
 RECORDINGS_DIR = "recordings"
+ROBOT_CSV = (("estimates.csv", CSV_HEADER), ("details.csv", DETAILS_HEADER))
+WEARABLE_CSV = (("joints.csv", JOINTS_HEADER),)
 SUFFIX = ".jsonl.gz"
+
+
+def csv_of(params: object) -> tuple[tuple[str, str], ...]:
+    """The live CSV files of a session with these parameters (robot or wearable)."""
+    from estimators.wearable.params import WearableParams
+
+    return WEARABLE_CSV if isinstance(params, WearableParams) else ROBOT_CSV
 
 
 def recording_relpath(session_id: int) -> str:
@@ -81,14 +91,18 @@ def _set_aside(path: Path) -> None:
         path.rename(path.with_name(f"{path.name}.{stamp}.orphan"))
 
 
+_NOTHING = recording.Mark(0, 0, 0)  # an empty file
+
+
 class LineSink(list[str]):
     """Stands in for ``DeviceRun.est_lines``/``det_lines``: only counts the lines
     (``len()`` is what the report reads) and writes them through to a file at each
     :meth:`flush`, so a session of hours does not hold its CSV in memory and a poll does not
     pay for a file write."""
 
-    def __init__(self, fh: IO[str], start: recording.Mark) -> None:
-        """``start``: what the file holds already (its header, or a takeover's copy)."""
+    def __init__(self, fh: IO[str] | None, start: recording.Mark = _NOTHING) -> None:
+        """``start``: what the file holds already (its header, or a takeover's copy).
+        ``fh`` None: a sink that keeps nothing (a wearable session has no estimates.csv)."""
         super().__init__()
         self._fh = fh
         self._n = start.lines
@@ -107,11 +121,12 @@ class LineSink(list[str]):
 
     def flush(self) -> None:
         if self._pending:
-            text = "\n".join(self._pending) + "\n"
-            data = text.encode()
-            self.written += len(data)
-            self.written_crc = zlib.crc32(data, self.written_crc)
-            self._fh.write(text)
+            if self._fh is not None:
+                text = "\n".join(self._pending) + "\n"
+                data = text.encode()
+                self.written += len(data)
+                self.written_crc = zlib.crc32(data, self.written_crc)
+                self._fh.write(text)
             self._pending.clear()
 
     def mark(self) -> recording.Mark:
@@ -131,11 +146,14 @@ class SessionFiles:
         session_id: int,
         staging: str | None = None,
         resume: FileMarks | None = None,
+        csv: tuple[tuple[str, str], ...] | None = None,
     ) -> None:
         """``staging``: a takeover's files, written beside the session's under this suffix
         and put in their place by :meth:`promote` once the recording is replayed.
         ``resume`` (with ``staging``): the staged files begin as copies of the session's
-        files up to these marks (a snapshot's); ``ValueError`` if they do not hold them."""
+        files up to these marks (a snapshot's); ``ValueError`` if they do not hold them.
+        ``csv``: the live CSV files as (name, header); default estimates.csv and details.csv
+        (a wearable session: joints.csv, :data:`WEARABLE_CSV`)."""
         self.relpath = recording_relpath(session_id)
         self.recording_path = data_dir / self.relpath
         self.out = outputs_dir(self.recording_path)
@@ -155,27 +173,35 @@ class SessionFiles:
             rec.unlink(missing_ok=True)
             shutil.rmtree(out, ignore_errors=True)
         out.mkdir(mode=0o700)
-        est_path, det_path = out / "estimates.csv", out / "details.csv"
-        if resume is None:
-            rec_start = None
-            est_start = _write_header(est_path, CSV_HEADER)
-            det_start = _write_header(det_path, DETAILS_HEADER)
-        else:
+        kept = (
+            {}
+            if resume is None
+            else {"estimates.csv": resume.estimates, "details.csv": resume.details}
+        )
+        rec_start = None
+        if resume is not None:
             assert staging is not None
             rec_start = recording.copy_prefix(self.recording_path, rec, resume.recording)
-            est_start = recording.copy_prefix(
-                self.out / "estimates.csv", est_path, resume.estimates
-            )
-            det_start = recording.copy_prefix(self.out / "details.csv", det_path, resume.details)
         # level 1: a third of level 6's CPU for ~20 % more bytes (the live loop is the
         # scarce resource; a recording can be recompressed offline)
         self.recorder = recording.Writer(
             rec, "x" if rec_start is None else "a", compresslevel=1, start=rec_start
         )
-        self._est = open(est_path, "a", encoding="utf-8")  # noqa: SIM115
-        self._det = open(det_path, "a", encoding="utf-8")  # noqa: SIM115
-        self.estimates = LineSink(self._est, est_start)
-        self.details = LineSink(self._det, det_start)
+        self._fhs: list[IO[str]] = []
+        self.sinks: dict[str, LineSink] = {}
+        for name, header in csv or ROBOT_CSV:
+            if resume is None:
+                start = _write_header(out / name, header)
+            elif name in kept:
+                start = recording.copy_prefix(self.out / name, out / name, kept[name])
+            else:  # snapshots are of robot sessions' files only
+                raise ValueError(f"a snapshot holds no mark for {name}")
+            fh = open(out / name, "a", encoding="utf-8")  # noqa: SIM115
+            self._fhs.append(fh)
+            self.sinks[name] = LineSink(fh, start)
+        # a wearable session's files have no estimates/details: these sinks then keep nothing
+        self.estimates = self.sinks.get("estimates.csv", LineSink(None))
+        self.details = self.sinks.get("details.csv", LineSink(None))
         self.closed = False
 
     def marks(self) -> FileMarks:
@@ -211,20 +237,20 @@ class SessionFiles:
         """Everything so far to the OS (the service does it every 0.25 s)."""
         if not self.closed:
             self.recorder.flush()
-            self.estimates.flush()
-            self.details.flush()
-            self._est.flush()
-            self._det.flush()
+            for sink in self.sinks.values():
+                sink.flush()
+            for fh in self._fhs:
+                fh.flush()
 
     def close(self, report: dict[str, Any] | None) -> None:
         if self.closed:
             return
         self.closed = True
-        self.estimates.flush()
-        self.details.flush()
+        for sink in self.sinks.values():
+            sink.flush()
         self.recorder.close()
-        self._est.close()
-        self._det.close()
+        for fh in self._fhs:
+            fh.close()
         if report is not None:
             (self.out / "report.json").write_text(dump_report(report))
             shutil.rmtree(self.state_dir, ignore_errors=True)  # the session is complete

@@ -403,6 +403,13 @@ class Gateway(LiveManager):
             raise LiveUnavailable("no worker holds the device")
         return None if result is None else [float(x) for x in result]
 
+    async def rom_test(self, session: SessionInfo, movement: str | None) -> dict[str, Any] | None:
+        body = {"op": "rom", "session_id": session.id, "movement": movement}
+        answered, result = await self._ask(session.device, body)
+        if not answered:
+            raise LiveUnavailable("no worker holds the device")
+        return result if isinstance(result, dict) else None
+
     async def live_report(self, session_id: int, device: str) -> dict[str, Any] | None:
         answered, result = await self._ask(device, {"op": "report", "session_id": session_id})
         return result if answered and isinstance(result, dict) else None

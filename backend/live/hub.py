@@ -60,6 +60,7 @@ class Client:
 @dataclass
 class _Pending:
     session_id: int | None = None
+    kind: str = "estimate"  # the message type of the rows: estimate, or joints (wearable)
     display: list[Block] = field(default_factory=list)
     overlay: list[Block] = field(default_factory=list)
     last_sent: float = -1e9
@@ -70,9 +71,9 @@ def dumps(msg: Mapping[str, Any]) -> str:
     return orjson.dumps(msg).decode("utf-8")
 
 
-def _estimate_text(device: str, blocks: list[Block]) -> str:
+def _estimate_text(device: str, blocks: list[Block], kind: str = "estimate") -> str:
     rows = join(blocks).columns()
-    return dumps_numpy({"type": "estimate", "device": device, "rows": rows}).decode("utf-8")
+    return dumps_numpy({"type": kind, "device": device, "rows": rows}).decode("utf-8")
 
 
 class Hub:
@@ -139,14 +140,20 @@ class Hub:
         self._send(device, session_id, msg, overlay_msg)
 
     def rows(
-        self, device: str, session_id: int | None, display: Block | None, overlay: Block | None
+        self,
+        device: str,
+        session_id: int | None,
+        display: Block | None,
+        overlay: Block | None,
+        kind: str = "estimate",
     ) -> None:
         p = self._pending.get(device)
         if p is None:
-            p = self._pending[device] = _Pending(session_id)
-        elif p.session_id != session_id:
+            p = self._pending[device] = _Pending(session_id, kind)
+        elif p.session_id != session_id or p.kind != kind:
             self.flush(device)
             p.session_id = session_id
+            p.kind = kind
         if display is not None:
             p.display.append(display)
         if overlay is not None:
@@ -174,7 +181,7 @@ class Hub:
             if not c.wants(device, p.session_id):
                 continue
             if c.overlay is None and display:
-                text = text or _estimate_text(device, display)
+                text = text or _estimate_text(device, display, p.kind)
                 c.send(text)
             elif c.overlay is not None and overlay:
                 otext = otext or _estimate_text(device, overlay)

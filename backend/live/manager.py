@@ -38,17 +38,19 @@ from backend.live.device_audit import EventAuditor
 from backend.live.devices import DeviceStats
 from backend.live.hub import Client, Hub, dumps
 from backend.live.ingest import MAX_PAYLOAD_BYTES, Ingest
-from backend.live.run import SessionContext
+from backend.live.run import LiveRun, SessionContext, session_params
 from backend.live.store import DbWriter
+from backend.live.wearable_run import WearableLiveRun
 from backend.live.worker import (
     Command,
     DeviceWorker,
+    RomTestCommand,
     RowsView,
     Scheduler,
     SetNominal,
     StartSession,
     StopSession,
-    session_summary,
+    summary_of,
 )
 from backend.live.zenoh_io import RawSample, ZenohIO
 from backend.schemas.live import OverlayStatusMsg, StatusMsg
@@ -305,8 +307,11 @@ class LiveManager:
         out: dict[str, Any] = {"rates_hz": st.rates_hz, "ingest": st.ingest(), "token": st.token}
         out["ingest"]["queued"] = w.queued if w is not None else 0
         if w is not None:
-            q = w.live.pipeline.quality.as_dict()
-            q.pop("gaps", None)
+            if isinstance(w.live, WearableLiveRun):
+                q = w.live.status()["quality"]
+            else:
+                q = w.live.pipeline.quality.as_dict()
+                q.pop("gaps", None)
             out["quality"] = q
             out["session_id"] = w.live.session_id
         return out
@@ -319,9 +324,17 @@ class LiveManager:
         w = self.workers.get(name)
         sid: int | None = None
         patient: str | None = None
-        params = w.live.params if w is not None else self._idle_params
-        if w is not None:
-            live = w.live
+        params = self._idle_params
+        run = w.live if w is not None else None
+        if w is not None and isinstance(run, WearableLiveRun):
+            live_w = run
+            pipe = live_w.status()  # its rejections: the decoder's and the tracker's
+            sid = live_w.session_id
+            patient = live_w.session.patient if live_w.session else None
+            ingest = {**st.ingest(), "queued": w.queued}
+        elif w is not None and isinstance(run, LiveRun):
+            live = run
+            params = live.params
             pipe = live.pipeline.status()
             rejected = dict(pipe["quality"]["rejected"])
             for reason, n in live.run.decode_rejected.items():
@@ -407,7 +420,7 @@ class LiveManager:
         return await asyncio.wait_for(worker.command(cmd), COMMAND_TIMEOUT_S)
 
     async def session_started(self, session: SessionInfo) -> str | None:
-        params = PipelineParams.from_json(dict(session.params))
+        params = session_params(dict(session.params))
         if not self.admission.allows(session.device):
             # a registry row is an admission (e.g. written by another service instance)
             async with self.database.session() as db:
@@ -424,13 +437,15 @@ class LiveManager:
             await self._patient_code(session.patient_id),
             self.settings.recording_max_bytes,
         )
-        session_files = files.SessionFiles(self.settings.data_dir, session.id)
+        session_files = files.SessionFiles(
+            self.settings.data_dir, session.id, csv=files.csv_of(params)
+        )
         try:
             await self._run(worker, StartSession(context, session_files))
         except BaseException:
             session_files.close(None)
             raise
-        if self.viz is not None:
+        if self.viz is not None and isinstance(params, PipelineParams):
             self.viz.configure(
                 session.device,
                 tolerance_m=params.tolerance_m,
@@ -456,6 +471,16 @@ class LiveManager:
         result: Point | None = await self._run(worker, SetNominal(session.id, pt, from_estimate))
         return result
 
+    async def rom_test(self, session: SessionInfo, movement: str | None) -> dict[str, Any] | None:
+        """Start (``movement``) or stop (None) a ROM test of a running wearable session."""
+        worker = self.workers.get(session.device)
+        if worker is None:
+            raise LiveUnavailable("no data from the device since the service started")
+        result: dict[str, Any] | None = await self._run(
+            worker, RomTestCommand(session.id, movement)
+        )
+        return result
+
     # ------------------------------------------------------------------ exports
 
     async def session_committed(self, session: SessionInfo) -> None:
@@ -466,6 +491,8 @@ class LiveManager:
         w = self.workers.get(device)
         if w is None or w.live.session_id != session_id:
             return None
+        if isinstance(w.live, WearableLiveRun):
+            return w.live.report()
         report = w.live.run.report()
         report["data_quality"]["other_devices"] = {}
         return report
@@ -477,7 +504,8 @@ class LiveManager:
     async def flush_session(self, session_id: int, device: str) -> None:
         w = self.workers.get(device)
         if w is not None and w.live.session_id == session_id and w.live.files is not None:
-            w.live.run.format_rows()
+            if isinstance(w.live, LiveRun):
+                w.live.run.format_rows()
             w.live.files.flush()
 
     # ------------------------------------------------------------------ after a crash
@@ -521,8 +549,6 @@ async def recover_session(database: Database, data_dir: Path, session_id: int) -
                 )
         if not have_summary:
             await db.execute(
-                update(Session)
-                .where(Session.id == session_id)
-                .values(summary=session_summary(report))
+                update(Session).where(Session.id == session_id).values(summary=summary_of(report))
             )
     log.info("interrupted session %s: outputs complete", session_id)

@@ -45,12 +45,21 @@ from backend.live import files, lease, recovery, snapshot
 from backend.live.devices import DeviceStats
 from backend.live.ingest import RawMessage
 from backend.live.manager import COMMAND_TIMEOUT_S, LiveManager
-from backend.live.run import LiveRun, SessionContext, rows_ready
-from backend.live.worker import DeviceWorker, SetNominal, StartSession, StopSession
+from backend.live.run import LiveRun, SessionContext, rows_ready, session_params
+from backend.live.wearable_run import JointsOut, WearableLiveRun
+from backend.live.worker import (
+    AnyRun,
+    DeviceWorker,
+    RomTestCommand,
+    SetNominal,
+    StartSession,
+    StopSession,
+    new_run,
+)
 from backend.settings import Settings
 from estimators.output import Output
-from estimators.params import PipelineParams
 from estimators.verdicts import CycleVerdict
+from estimators.wearable.params import WearableParams
 from protocol import keys, recording
 
 log = logging.getLogger(__name__)
@@ -121,7 +130,7 @@ def _kept(lines: Iterator[bytes], last: deque[bytes]) -> Iterator[bytes]:
 
 
 def replay(
-    run: LiveRun, path: Path, prefix: str, skip: int = 0, last: deque[bytes] | None = None
+    run: AnyRun, path: Path, prefix: str, skip: int = 0, last: deque[bytes] | None = None
 ) -> list[tuple[int, CycleVerdict]]:
     """The recording's complete lines through ``run`` (into its files, as received), with
     the bookkeeping a live worker does on its outputs; returns the cycles (index, verdict).
@@ -130,7 +139,7 @@ def replay(
     cycles: list[tuple[int, CycleVerdict]] = []
 
     def absorb(out: Output | None) -> None:
-        if out is None:
+        if out is None or not isinstance(run, LiveRun):
             return
         if out.n:
             run.converged = bool(out.rows["heading_converged"][-1])
@@ -146,17 +155,20 @@ def replay(
         except keys.KeyError_:
             kind = "unknown"
         run.ingest(RawMessage(key, payload, len(payload), 0.0, kind))
-        if run.fed_since_poll and rows_ready(run.pipeline):
+        if isinstance(run, WearableLiveRun):
+            run.poll()  # its rows into the staged joints.csv
+        elif run.fed_since_poll and rows_ready(run.pipeline):
             absorb(run.poll())
     if run.fed_since_poll:
-        absorb(run.poll())
+        out = run.poll()
+        absorb(out if not isinstance(out, JointsOut) else None)
     return cycles
 
 
-def _cycles_before(run: LiveRun, skip: int) -> list[tuple[int, CycleVerdict]]:
+def _cycles_before(run: AnyRun, skip: int) -> list[tuple[int, CycleVerdict]]:
     """The judged cycles a run restored from a snapshot had (index, verdict), rebuilt from
     its report's list, for the database rows its previous holder may not have written."""
-    if not skip:
+    if not skip or not isinstance(run, LiveRun):
         return []
     out = []
     nan = float("nan")
@@ -534,11 +546,13 @@ class WorkerNode(LiveManager):
     ) -> None:
         if w.live.session_id == info.id:
             return
-        params = PipelineParams.from_json(dict(info.params))
+        params = session_params(dict(info.params))
         context = SessionContext(info, params, patient)
         path = self.settings.data_dir / files.recording_relpath(info.id)
         if not path.exists():
-            session_files = files.SessionFiles(self.settings.data_dir, info.id)
+            session_files = files.SessionFiles(
+                self.settings.data_dir, info.id, csv=files.csv_of(params)
+            )
             await asyncio.wait_for(w.command(StartSession(context, session_files)), 30)
             self._started_at[info.id] = time.monotonic()
             return
@@ -554,15 +568,25 @@ class WorkerNode(LiveManager):
         last: deque[bytes] = deque(maxlen=RECOVER_LINES)
         recovered = 0
         try:
-            ready = await asyncio.to_thread(
-                snapshot.prepare,
-                self.settings.data_dir,
-                context,
-                name,
-                self.prefix,
-                f"epoch{epoch}",
-                self.snapshots_rejected,
-            )
+            if isinstance(context.params, WearableParams):  # snapshots: robot runs only
+                staged = files.SessionFiles(
+                    self.settings.data_dir,
+                    sid,
+                    staging=f"epoch{epoch}",
+                    csv=files.csv_of(context.params),
+                )
+                fresh = new_run(name, self.prefix, DeviceStats(name), context, staged)
+                ready = snapshot.Prepared(fresh, staged, 0, None)
+            else:
+                ready = await asyncio.to_thread(
+                    snapshot.prepare,
+                    self.settings.data_dir,
+                    context,
+                    name,
+                    self.prefix,
+                    f"epoch{epoch}",
+                    self.snapshots_rejected,
+                )
             run, staged = ready.run, ready.files
             try:
                 cycles = await asyncio.to_thread(replay, run, path, self.prefix, ready.skip, last)
@@ -761,6 +785,11 @@ class WorkerNode(LiveManager):
         if op == "flush":  # its files as of now (exports of a running session)
             await self.flush_session(msg["session_id"], device)
             return None
+        if op == "rom":
+            return await asyncio.wait_for(
+                w.command(RomTestCommand(msg["session_id"], msg.get("movement"))),
+                COMMAND_TIMEOUT_S,
+            )
         raise ValueError(f"unknown command {op!r}")
 
 

@@ -25,6 +25,7 @@ from backend.live.ingest import RawMessage, recorded_form
 from estimators.output import Output
 from estimators.params import PipelineParams
 from estimators.pipeline import Pipeline
+from estimators.wearable.params import WearableParams
 from protocol import keys, wire
 
 log = logging.getLogger(__name__)
@@ -33,10 +34,17 @@ SHOULDER_MEMORY = 25  # rows (1 s at 25 Hz) averaged for "nominal from the estim
 SHOULDER_BATCH = 64  # polled rows filtered at once (per poll, numpy's call overhead dominated)
 
 
+def session_params(obj: dict[str, Any]) -> PipelineParams | WearableParams:
+    """A session's parameters: contract §8's ``"mode": "wearable"`` or the robot mode's."""
+    if obj.get("mode") == "wearable":
+        return WearableParams.from_json(obj)
+    return PipelineParams.from_json(obj)
+
+
 @dataclass(frozen=True)
 class SessionContext:
     info: SessionInfo
-    params: PipelineParams
+    params: PipelineParams | WearableParams  # a wearable session's: contract §8
     patient: str | None
     recording_max_bytes: int = 2 << 30  # Settings.recording_max_bytes
 
@@ -71,7 +79,9 @@ class LiveRun:
         self.stats = stats
         self.session = session
         self.files = files
-        self.params = session.params if session else PipelineParams()
+        params = session.params if session else PipelineParams()
+        assert isinstance(params, PipelineParams)  # a wearable session: WearableLiveRun
+        self.params = params
         self.run = DeviceRun(device, self.params)
         self.run.keep_rows = session is not None  # a preview keeps no rows
         self.budget = RecordingBudget(session.recording_max_bytes if session else 0)

@@ -45,6 +45,7 @@ import numpy as np
 from backend.live import files
 from backend.live.devices import DeviceStats
 from backend.live.run import LiveRun, SessionContext
+from backend.live.wearable_run import WearableLiveRun
 from estimators import state
 from protocol import recording
 
@@ -228,7 +229,7 @@ def candidates(recording_path: Path) -> list[Path]:
 
 @dataclass
 class Prepared:
-    run: LiveRun
+    run: LiveRun | WearableLiveRun  # a wearable run: fresh (snapshots are of robot runs)
     files: files.SessionFiles
     skip: int  # recording lines the run has seen already (replay the rest)
     snapshot: Path | None

@@ -33,9 +33,11 @@ from backend.live.ingest import RawMessage
 from backend.live.run import LiveRun, SessionContext, rows_ready
 from backend.live.snapshot import Snapshotter
 from backend.live.store import DbWriter
+from backend.live.wearable_run import JointsOut, WearableLiveRun
 from backend.live.zenoh_io import ZenohIO
 from estimators.output import Output
 from estimators.verdicts import CycleVerdict
+from estimators.wearable.params import WearableParams
 from protocol import wire
 
 log = logging.getLogger(__name__)
@@ -72,6 +74,14 @@ class StopSession(Command):
 
 
 @dataclass(eq=False)
+class RomTestCommand(Command):
+    """Start (``movement``) or stop (None) a wearable session's ROM test."""
+
+    session_id: int
+    movement: str | None
+
+
+@dataclass(eq=False)
 class SetNominal(Command):
     session_id: int
     point: list[float] | None
@@ -92,6 +102,45 @@ def session_summary(report: dict[str, Any]) -> dict[str, Any]:
         "rejected_messages": sum(report["data_quality"]["rejected"].values()),
         **clinical.summary_part(report),  # anatomical ROM, movement quality medians
     }
+
+
+def summary_of(report: dict[str, Any]) -> dict[str, Any]:
+    """:func:`session_summary`, and a wearable session's own keys (:func:`wearable_summary`)."""
+    out = session_summary(report)
+    if report.get("mode") == "wearable":
+        out.update(wearable_summary(report))
+    return out
+
+
+def wearable_summary(report: dict[str, Any]) -> dict[str, Any]:
+    """A wearable session's: its range of motion per joint (§8 names), its ROM tests."""
+    return {
+        "mode": "wearable",
+        "rom": report["rom"],
+        "rom_tests": report.get("rom_tests", []),
+        "rejected_messages": sum(report["data_quality"]["rejected"].values()),
+        "flagged_rows": report["data_quality"]["flagged_rows"],
+    }
+
+
+AnyRun = LiveRun | WearableLiveRun
+
+
+def new_run(
+    name: str,
+    prefix: str,
+    stats: DeviceStats,
+    context: SessionContext | None = None,
+    files: SessionFiles | None = None,
+    wearable: WearableParams | None = None,
+) -> AnyRun:
+    """The run a device's session (its parameters, contract §8 "mode") or preview
+    (``wearable``: the preview of a device that sends wearable streams) needs."""
+    if context is not None and isinstance(context.params, WearableParams):
+        return WearableLiveRun(name, prefix, stats, context, files)
+    if context is None and wearable is not None:
+        return WearableLiveRun(name, prefix, stats, params=wearable)
+    return LiveRun(name, prefix, stats, context, files)
 
 
 def _always() -> bool:
@@ -181,7 +230,7 @@ class DeviceWorker:
         self._view = view
         self._budget = budget or IngestBudget(max_bytes)  # shared by all devices
         self._on_event = on_event  # device events during a session: audited
-        self.live = LiveRun(name, prefix, stats)
+        self.live: AnyRun = LiveRun(name, prefix, stats)
         self._queue: deque[RawMessage | Command] = deque()
         self._bytes = 0
         self.poll_due = False
@@ -285,7 +334,8 @@ class DeviceWorker:
             self.stats.reject("internal_error")
             if self.internal_errors <= 3:
                 log.exception("device %s: worker error", self.name)
-        if self.snapshots is not None and self.fence is not None:
+        # snapshots are of robot runs (a wearable takeover replays the whole recording)
+        if self.snapshots is not None and self.fence is not None and isinstance(self.live, LiveRun):
             try:
                 self.snapshots.after_turn(self.live, self.fence[2], self.alive)
             except Exception:  # never the device's data: counted, logged
@@ -306,6 +356,7 @@ class DeviceWorker:
             self._bytes -= item.size
             self._budget.give(item.size)
             nbytes += item.size
+            self._preview_kind(item)
             try:
                 decoded = self.live.ingest(item)
                 sid = self.live.session_id
@@ -318,8 +369,25 @@ class DeviceWorker:
                     log.exception("device %s: message not processed", self.name)
         self._poll_if_ready()
 
+    def _preview_kind(self, msg: RawMessage) -> None:
+        """A preview follows the device's streams (contract §8: a forearm IMU or a camera
+        and no robot is a wearable device); a session keeps its parameters' mode."""
+        live = self.live
+        if live.session is not None:
+            return
+        if isinstance(live, LiveRun) and (msg.kind == "camera" or msg.key.endswith("/forearm")):
+            self.live = WearableLiveRun(self.name, self.prefix, self.stats)
+            self._on_change(self.name)
+        elif isinstance(live, WearableLiveRun) and msg.kind == "robot":
+            self.live = LiveRun(self.name, self.prefix, self.stats)
+            self._on_change(self.name)
+
     def _poll_if_ready(self) -> None:
         live = self.live
+        if isinstance(live, WearableLiveRun):  # its rows are complete as soon as fed
+            if live.fed_since_poll:
+                self._emit(live.poll())
+            return
         # also when samples pile up without rows (an IMU-only flood): one poll then does a
         # bounded amount of work, never seconds of it (same numbers: polls never change them)
         if live.fed_since_poll and (rows_ready(live.pipeline) or live.fed_samples >= POLL_SAMPLES):
@@ -327,10 +395,14 @@ class DeviceWorker:
 
     # ------------------------------------------------------------------ outputs
 
-    def _emit(self, out: Output | None) -> None:
+    def _emit(self, out: Output | JointsOut | None) -> None:
         if out is None:
             return
+        if isinstance(out, JointsOut):
+            self._emit_joints(out)
+            return
         live, dev = self.live, self.name
+        assert isinstance(live, LiveRun)
         sid = live.session_id
         pubs = self._zio.publishers(dev) if self._zio is not None else None
         if out.n:
@@ -391,6 +463,35 @@ class DeviceWorker:
                 self._store_cycle(sid, v, live.cycle_index)
             live.cycle_index += 1
 
+    def _emit_joints(self, out: JointsOut) -> None:
+        """A wearable run's rows: on ``rehab/<device>/joints`` and to the dashboards."""
+        live, dev = self.live, self.name
+        if out.rows is None or not out.n or not isinstance(live, WearableLiveRun):
+            return
+        sid = live.session_id
+        pubs = self._zio.publishers(dev) if self._zio is not None else None
+        if pubs is not None:
+            try:
+                pubs.joints.put(
+                    wire.joints_payload(out.rows, feed.JOINTS_EXTRA), attachment=self._attachment
+                )
+            except Exception:
+                log.warning("device %s: joints not published", dev, exc_info=True)
+        therapist, _ = self._hub.interest(dev, sid)
+        if therapist:
+            self._hub.rows(dev, sid, feed.joints_block(out.rows), None, kind="joints")
+        view = self._view()
+        if view is not None and view.selected == dev:
+            # the 3D arm from the joint angles: elbow and wrist of the DH model, in S (the
+            # shoulder joint centre is its origin)
+            rows = feed.as_rows(feed.joints_block(out.rows))
+            zero = [0.0] * out.n
+            view.update(dev, {**rows, "shoulder_x": zero, "shoulder_y": zero, "shoulder_z": zero})
+        converged = all(live.sure().values())
+        if converged != live.converged:
+            live.converged = converged
+            self._on_change(dev)
+
     def _store_cycle(self, sid: int, v: CycleVerdict, index: int) -> None:
         async def op(db: AsyncSession) -> None:
             await record_cycle(
@@ -426,6 +527,8 @@ class DeviceWorker:
                 result = self._stop(cmd.session_id)
             elif isinstance(cmd, SetNominal):
                 result = self._nominal(cmd)
+            elif isinstance(cmd, RomTestCommand):
+                result = self._rom_test(cmd)
             else:  # pragma: no cover
                 raise TypeError(type(cmd).__name__)
         except Exception as exc:
@@ -442,7 +545,7 @@ class DeviceWorker:
                 cmd.context.info.id,
             )
             self._stop(self.live.session.info.id)
-        self.live = LiveRun(self.name, self.prefix, self.stats, cmd.context, cmd.files)
+        self.live = new_run(self.name, self.prefix, self.stats, cmd.context, cmd.files)
         self._on_change(self.name)
 
     def _stop(self, session_id: int) -> dict[str, Any] | None:
@@ -454,15 +557,27 @@ class DeviceWorker:
         self._hub.flush(self.name)
         assert live.files is not None
         live.files.close(report)
-        self.live = LiveRun(self.name, self.prefix, self.stats)  # a fresh preview
+        # a fresh preview, of the same mode
+        wearable = live.params if isinstance(live, WearableLiveRun) else None
+        self.live = new_run(self.name, self.prefix, self.stats, wearable=wearable)
         self._hub.end_session(session_id)
         self._on_change(self.name)
-        return session_summary(report)
+        return summary_of(report)
+
+    def _rom_test(self, cmd: RomTestCommand) -> dict[str, Any] | None:
+        live = self.live
+        if live.session_id != cmd.session_id or not isinstance(live, WearableLiveRun):
+            raise LiveUnavailable("the device is not running this wearable session")
+        result = live.rom_start(cmd.movement) if cmd.movement else live.rom_stop()
+        self._on_change(self.name)
+        return result
 
     def _nominal(self, cmd: SetNominal) -> list[float] | None:
         live = self.live
         if live.session_id != cmd.session_id:
             raise LiveUnavailable("the device is not running this session")
+        if isinstance(live, WearableLiveRun):
+            raise LiveUnavailable("a wearable session has no nominal shoulder")
         result: list[float] | None
         payload: dict[str, Any]
         if cmd.from_estimate:

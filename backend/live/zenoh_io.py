@@ -50,6 +50,7 @@ class DevicePublishers:
     estimate: zenoh.Publisher
     feedback: zenoh.Publisher
     event: zenoh.Publisher
+    joints: zenoh.Publisher  # a wearable device's joint angles (contract §8)
 
 
 class ZenohIO:
@@ -125,6 +126,7 @@ class ZenohIO:
             pubs.estimate.undeclare()  # type: ignore[no-untyped-call]
             pubs.feedback.undeclare()  # type: ignore[no-untyped-call]
             pubs.event.undeclare()  # type: ignore[no-untyped-call]
+            pubs.joints.undeclare()  # type: ignore[no-untyped-call]
         self._subs.clear()
         self._pubs.clear()
         session.close()  # type: ignore[no-untyped-call]
@@ -216,6 +218,7 @@ class ZenohIO:
                 estimate=declare(keys.estimate(device, self.prefix)),
                 feedback=declare(keys.feedback(device, self.prefix)),
                 event=declare(keys.event(device, self.prefix)),
+                joints=declare(keys.joints(device, self.prefix)),
             )
             self._pubs[device] = pubs
         return pubs

@@ -30,11 +30,32 @@ from backend.schemas.common import Params, overrides
 from backend.schemas.sessions import (
     NominalShoulderIn,
     OverlayLinkOut,
+    RomTestIn,
     SessionCreate,
     SessionOut,
     SessionSummary,
+    WearableSpec,
 )
 from backend.summaries import complete_summaries
+from estimators.wearable.params import WearableParams, WearableParamsError
+
+WEARABLE_ROBOT_KEYS = ("upper_arm_length_m",)  # the patient's §4 values a wearable session uses
+
+
+def wearable_params(params: dict[str, Any], spec: WearableSpec) -> dict[str, Any]:
+    """A wearable session's parameters (contract §8): the patient's upper-arm length and the
+    request's wearable keys; 422 if they cannot be used."""
+    out: dict[str, Any] = {"mode": "wearable", **{k: params[k] for k in WEARABLE_ROBOT_KEYS}}
+    out.update(spec.model_dump(exclude_none=True))
+    for k in ("upperarm_imu", "forearm_imu"):
+        if k in out:
+            out[k] = {a: v for a, v in out[k].items() if v is not None}
+    try:
+        WearableParams.from_json(out)
+    except WearableParamsError as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
+    return out
+
 
 router = APIRouter(prefix="/sessions", tags=["sessions"])
 
@@ -96,6 +117,8 @@ async def create_session(
     if device is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, "device has never sent data")
     params = Params.model_validate({**patient.params(), **overrides(body.params)}).model_dump()
+    if body.wearable is not None:  # contract §8: the mode is chosen by the parameters
+        params = wearable_params(params, body.wearable)
     try:
         session = await start_session(
             db, patient=patient, device=device, therapist=therapist, params=params
@@ -219,6 +242,48 @@ async def set_nominal_shoulder(
     await db.commit()
     await db.refresh(session, ["nominal_shoulder"])
     return session_out(session)
+
+
+@router.post("/{session_id}/rom-test", responses={**_404, **_409})
+async def start_rom_test(
+    session_id: int, body: RomTestIn, therapist: CurrentTherapist, state: State, db: DB
+) -> dict[str, Any]:
+    """A wearable session: start a range-of-motion test of ``movement`` (one at a time; a
+    running one is stopped). Its peak goes into the session's report."""
+    session = await _load(db, session_id)
+    _require_active(session)
+    try:
+        test = await state.live.rom_test(session_info(session), body.movement)
+    except LiveUnavailable as exc:
+        raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
+    audit(
+        db,
+        therapist,
+        "session.rom_test_start",
+        f"session:{session.id}",
+        {"movement": body.movement},
+    )
+    await db.commit()
+    return test or {}
+
+
+@router.delete("/{session_id}/rom-test", responses={**_404, **_409})
+async def stop_rom_test(
+    session_id: int, therapist: CurrentTherapist, state: State, db: DB
+) -> dict[str, Any]:
+    """Stop the running ROM test; returns it with its peak (``peak_deg`` null: no sure
+    sample of the joint during the test)."""
+    session = await _load(db, session_id)
+    _require_active(session)
+    try:
+        test = await state.live.rom_test(session_info(session), None)
+    except LiveUnavailable as exc:
+        raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
+    if test is None:
+        raise HTTPException(status.HTTP_409_CONFLICT, "no ROM test is running")
+    audit(db, therapist, "session.rom_test_stop", f"session:{session.id}", test)
+    await db.commit()
+    return test
 
 
 @router.delete("/{session_id}/nominal-shoulder", responses={**_404, **_409})

@@ -112,6 +112,69 @@ class StatusMsg(TypedDict):
 
 
 @with_config(_STRICT)
+class RomTest(TypedDict):
+    """A ROM test of a wearable session: the extreme of one joint angle among sure rows."""
+
+    movement: str
+    joint: str
+    start_t: Num
+    end_t: Num
+    peak_deg: Num
+    peak_t: Num
+    rows: int
+    sure_rows: int
+
+
+@with_config(_STRICT)
+class WearableQuality(TypedDict):
+    rejected: dict[str, int]
+    flagged_rows: dict[str, int]
+    camera_dropouts: int
+    gaps: list[Gap]
+
+
+@with_config(_STRICT)
+class WearableStatusMsg(TypedDict):
+    """A wearable device's status (contract §8): each joint angle's confidence, what is
+    wrong, the ROM tests (therapists)."""
+
+    type: Literal["status"]
+    device: str
+    online: bool
+    session_id: int | None
+    patient: str | None
+    mode: Literal["wearable"]
+    heading_converged: bool  # the robot mode's key: every angle sure
+    convergence_progress: float
+    angles_std_deg: dict[str, Num]
+    angles_sure: dict[str, bool]
+    sure_std_deg: float
+    vertical_std_deg: Num
+    flags: list[str]
+    filter: str
+    model: str
+    side: str
+    rom_active: RomTest | None
+    rom_tests: list[RomTest]
+    messages: list[str]
+    quality: WearableQuality
+    rates_hz: dict[str, float]
+    ingest: Ingest
+    tolerance_m: float
+    max_outside_fraction: float
+
+
+@with_config(_STRICT)
+class JointsMsg(TypedDict):
+    """A wearable device's rows: joints.csv's columns (§8), each angle's standard deviation,
+    flags (``backend.live.feed.JOINTS_COLUMNS``)."""
+
+    type: Literal["joints"]
+    device: str
+    rows: dict[str, list[Num]]
+
+
+@with_config(_STRICT)
 class OverlayStatusMsg(TypedDict):
     """The overlay's status: what the game needs to draw its circle and wait."""
 
@@ -201,9 +264,8 @@ class CycleMsg(TypedDict):
     index: NotRequired[int]
 
 
-LiveMsg = Annotated[
-    HelloMsg | StatusMsg | EstimateMsg | StateMsg | CycleMsg, Field(discriminator="type")
-]
+# two kinds of status (robot, wearable): told apart by their keys, not by "type"
+LiveMsg = HelloMsg | StatusMsg | WearableStatusMsg | EstimateMsg | StateMsg | CycleMsg | JointsMsg
 OverlayMsg = Annotated[
     OverlayStatusMsg | OverlayEstimateMsg | StateMsg | CycleMsg, Field(discriminator="type")
 ]

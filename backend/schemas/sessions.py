@@ -1,17 +1,54 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from backend.schemas.common import DeviceName, ParamsOverride, Point3, Strict
+from backend.schemas.common import DeviceName, Length, ParamsOverride, Point3, Strict
+
+
+class ImuMounting(Strict):
+    """Contract §8: the IMU's position in its segment's frame (m) and the rotation [w, x, y,
+    z] of IMU coordinates into it."""
+
+    position_m: Point3 | None = None
+    quat: Annotated[list[float], Field(min_length=4, max_length=4)] | None = None
+
+
+class WearableSpec(Strict):
+    """A wearable session (contract §8): two IMUs and an optional camera, no robot. Omitted
+    keys take §8's defaults; the upper-arm length is the patient's."""
+
+    side: Literal["left", "right"] | None = None
+    forearm_length_m: Length | None = None
+    upperarm_imu: ImuMounting | None = None
+    forearm_imu: ImuMounting | None = None
+    filter: Literal["ekf", "ukf"] | None = None
+    model: Literal["A", "B", "C"] | None = None
 
 
 class SessionCreate(Strict):
     patient_id: int
     device: DeviceName
     params: ParamsOverride | None = None
+    wearable: WearableSpec | None = None  # a wearable session (contract §8 "mode")
+
+
+class RomTestIn(Strict):
+    """Start a range-of-motion test: the movement the therapist asks for."""
+
+    movement: Literal[
+        "shoulder_flexion",
+        "shoulder_extension",
+        "shoulder_abduction",
+        "shoulder_internal_rotation",
+        "shoulder_external_rotation",
+        "elbow_flexion",
+        "elbow_extension",
+        "forearm_pronation",
+        "forearm_supination",
+    ]
 
 
 class NominalShoulder(BaseModel):

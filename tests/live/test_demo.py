@@ -1,7 +1,9 @@
-"""``rehab demo`` starts, prints how to log in, streams two devices, and stops by itself."""
+"""``rehab demo`` starts, prints how to log in, streams two robot devices and a wearable
+one, and stops by itself."""
 
 from __future__ import annotations
 
+import json
 import re
 import sqlite3
 import subprocess
@@ -29,6 +31,9 @@ def test_demo_runs_and_stops(tmp_path: Path) -> None:
     with sqlite3.connect(data / "rehab.db") as db:
         devices = {name: stats for name, stats in db.execute("SELECT name, stats FROM devices")}
         patients = {code for (code,) in db.execute("SELECT code FROM patients")}
-    assert set(devices) == {"sim01", "sim02"}
+    assert set(devices) == {"sim01", "sim02", "wear01"}
     assert all(stats for stats in devices.values())  # data arrived, counters stored
-    assert patients == {"demo-proper", "demo-drift"}
+    assert patients == {"demo-proper", "demo-drift", "demo-wearable"}
+    # the wearable device runs the wearable tracker (its preview follows its streams)
+    wear = json.loads(devices["wear01"])
+    assert "flagged_rows" in wear["quality"], wear

@@ -2,6 +2,7 @@
 // last seconds of estimates, and frame-coalesced notifications (at most one per animation
 // frame, however many messages arrived).
 
+import { JointSeries } from "./joints";
 import type {
   CycleMsg,
   EstimateRows,
@@ -81,6 +82,8 @@ export class DeviceLive {
   hand: { x: number[]; y: number[] } = { x: [], y: [] };
   version = 0;
   estimates = 0;
+  /** A wearable device's joint angles (contract §8) of the last WINDOW_S seconds. */
+  joints = new JointSeries();
 
   constructor(readonly name: string) {}
 
@@ -90,6 +93,7 @@ export class DeviceLive {
 
   /** Forget the plots and cycles (a new session begins). */
   reset(): void {
+    this.joints = new JointSeries();
     this.series = { t: [], disp: [], elbow: [], elev: [] };
     this.cycles = [];
     this.latest = emptyLatest();
@@ -336,6 +340,14 @@ export class LiveClient {
       case "estimate": {
         const name = this.nameOf(msg.device);
         this.device(name).applyRows(msg.rows);
+        this.stats.estimates[name] = (this.stats.estimates[name] ?? 0) + 1;
+        break;
+      }
+      case "joints": {
+        const name = this.nameOf(msg.device);
+        const d = this.device(name);
+        d.joints.apply(msg.rows, WINDOW_S);
+        d.version++;
         this.stats.estimates[name] = (this.stats.estimates[name] ?? 0) + 1;
         break;
       }

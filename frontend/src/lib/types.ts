@@ -237,14 +237,22 @@ export function unwrapReport(x: ReportOut | Report): Report {
 
 export type { CycleMsg, HelloMsg, StateMsg } from "./live-messages";
 export type Num = number | null;
-export type StatusMsg = M.OverlayStatusMsg & Partial<M.StatusMsg>;
+// a robot device's status or a wearable one's (contract §8): what either may carry
+type Varying = "quality" | "rates_hz";
+export type StatusMsg = M.OverlayStatusMsg &
+  Partial<Omit<M.StatusMsg, Varying> & Omit<M.WearableStatusMsg, Varying>> & {
+    quality?: Quality & Partial<M.WearableQuality>;
+    rates_hz?: Partial<M.Rates>;
+  };
 export type EstimateRows = Pick<M.LiveRows, "t"> & Partial<M.LiveRows & M.OverlayRows>;
+export type RomTest = M.RomTest;
+export type JointsMsg = M.JointsMsg;
 export interface EstimateMsg {
   type: "estimate";
   device: string;
   rows: EstimateRows;
 }
-export type LiveMsg = M.HelloMsg | StatusMsg | EstimateMsg | M.StateMsg | M.CycleMsg;
+export type LiveMsg = M.HelloMsg | StatusMsg | EstimateMsg | M.StateMsg | M.CycleMsg | JointsMsg;
 
 // each feed's messages are one of the client's
 type Accepts<T extends LiveMsg> = T;

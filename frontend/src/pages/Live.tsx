@@ -3,6 +3,7 @@ import { useEffect, useMemo, useState } from "preact/hooks";
 import { Alert, ConnectionNote, CycleCounts, CycleTable, KeyFigure, OnlineDot, QualityBadges } from "../components/bits";
 import { IndicatorBox, LivePlots, useFrames, useLiveClient } from "../components/live";
 import { Viz3D } from "../components/Viz3D";
+import { JointFigures, JointPlots, RomTestPanel, WearableNotes } from "../components/Wearable";
 import { api, errorText } from "../lib/api";
 import { dateTime, duration, num, warningAfter } from "../lib/format";
 import type { DeviceLive } from "../lib/live";
@@ -110,7 +111,17 @@ function Calibration({
   );
 }
 
-function StartSession({ device, online, onStarted }: { device: string; online: boolean; onStarted: (s: Session) => void }) {
+function StartSession({
+  device,
+  online,
+  wearable,
+  onStarted,
+}: {
+  device: string;
+  online: boolean;
+  wearable: boolean;
+  onStarted: (s: Session) => void;
+}) {
   const [patients, setPatients] = useState<Patient[] | null>(null);
   const [pick, setPick] = useState<string>(() => new URLSearchParams(location.search).get("patient") ?? "");
   const [error, setError] = useState<string | null>(null);
@@ -132,7 +143,10 @@ function StartSession({ device, online, onStarted }: { device: string; online: b
     setBusy(true);
     setError(null);
     try {
-      onStarted(await api.post<Session>("/api/sessions", { patient_id: Number(pick), device }));
+      // a wearable device (its streams, contract §8): a wearable session on the patient's arm
+      const side = patients?.find((p) => String(p.id) === pick)?.affected_side;
+      const body = wearable ? { patient_id: Number(pick), device, wearable: { side } } : { patient_id: Number(pick), device };
+      onStarted(await api.post<Session>("/api/sessions", body));
     } catch (e) {
       setError(errorText(e));
     } finally {
@@ -305,6 +319,7 @@ export function LivePage({ device }: { device: string }) {
     }
   };
 
+  const wearable = dev.status?.mode === "wearable" || active?.params.mode === "wearable";
   const L = dev.latest;
   const outsideFor = L.state && L.state !== "ok" && dev.stateSince !== null && L.t !== null ? L.t - dev.stateSince : null;
 
@@ -354,6 +369,7 @@ export function LivePage({ device }: { device: string }) {
         <StartSession
           device={device}
           online={online}
+          wearable={wearable}
           onStarted={(s) => {
             dev.reset();
             setPastCycles([]);
@@ -363,8 +379,22 @@ export function LivePage({ device }: { device: string }) {
         />
       )}
 
-      {active && <Calibration dev={dev} session={active} onSession={setSession} />}
+      {wearable && <WearableNotes dev={dev} />}
+      {active && !wearable && <Calibration dev={dev} session={active} onSession={setSession} />}
 
+      {wearable ? (
+        <div class="live-grid live-grid--wearable">
+          <section class="card" aria-labelledby="joints-title">
+            <h2 id="joints-title">Joint angles</h2>
+            <JointFigures dev={dev} />
+            {active && <RomTestPanel dev={dev} session={active} />}
+          </section>
+          <section class="card live-plots" aria-labelledby="plots-title">
+            <h2 id="plots-title">Last 30 seconds</h2>
+            <JointPlots client={client} dev={dev} />
+          </section>
+        </div>
+      ) : (
       <div class="live-grid">
         <section class="card live-indicator" aria-labelledby="ind-title">
           <h2 id="ind-title">Shoulder</h2>
@@ -381,8 +411,9 @@ export function LivePage({ device }: { device: string }) {
           <LivePlots client={client} dev={dev} tolerance={tolerance} />
         </section>
       </div>
+      )}
 
-      {active && (
+      {active && !wearable && (
         <section class="card" aria-labelledby="cycles-title">
           <div class="card__head">
             <h2 id="cycles-title">Cycles</h2>
