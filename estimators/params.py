@@ -58,6 +58,11 @@ class PipelineParams:
     imu_max_bridge_s: float = 0.1  # IMU gaps up to this are interpolated; longer ones reset
     robot_max_bridge_s: float = 0.3  # robot gaps up to this are interpolated for the fusion
     imu_wait_s: float = 0.5  # a robot sample waits this long (robot time) for the IMU
+    # An IMU message ending more than this far (s) ahead of the robot's newest stamp (offset
+    # corrected; before any robot data: of the stream's first IMU stamp) is rejected, counted
+    # as "imu_without_robot": without robot data nothing lets the pipeline forget IMU samples,
+    # so this bounds what a device sending IMU only holds (30 s at 1000 Hz: ~7 MB).
+    imu_lead_max_s: float = 30.0
     # A robot sample the IMU has not reached yet, but is at most this far behind (s), is
     # computed at once with the upper arm predicted from the newest IMU sample by its gyro:
     # the row does not wait for the next IMU message (up to one message period, 40 ms for
@@ -182,6 +187,7 @@ class PipelineParams:
             (0 < self.lowpass_cutoff_hz < self.fusion_rate_hz / 2, "lowpass below Nyquist"),
             (self.rate_probe_samples >= 2, "rate_probe_samples >= 2"),
             (0.0 <= self.predict_s <= 0.2, "imu_predict_s in [0, 0.2]"),
+            (self.imu_lead_max_s >= 1.0, "imu_lead_max_s >= 1"),
         ]
         bad = [msg for ok, msg in checks if not ok]
         if bad:

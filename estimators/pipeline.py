@@ -108,6 +108,7 @@ class Pipeline:
         self._cuff_src: tuple[Array, Array] | None = None  # arrays _cuff_bad describes
         self._cuff_bad: list[int] = []
         self._imu_frontier = -math.inf  # last IMU stamp fed
+        self._imu_first = math.nan  # first IMU stamp admitted (the lead's reference, no robot)
         self._robot_frontier = -math.inf
         # rows: robot samples in order; decided[i] = (with_imu, nominal_spec)
         self._row_t: list[float] = []
@@ -219,8 +220,17 @@ class Pipeline:
                 self.quality.ignored.get(f"imu_{segment}", 0) + 1
             )
             return False
+        # bounded memory: decided in feed order (never by poll timing), so batch and stream agree
+        ref = self._robot_frontier - self.params.robot_time_offset_s
+        if ref == -math.inf:
+            ref = self._imu_first if self._imu_first == self._imu_first else t0
+        if t1 - ref > self.params.imu_lead_max_s:
+            self.quality.reject("imu_without_robot")
+            return False
         if not self._imu_stream.admit(t0, seq, self.quality):
             return False
+        if self._imu_first != self._imu_first:
+            self._imu_first = t0
         self._imu_stream.last_t = self._imu_frontier = t1
         self.quality.imu_samples += n
         return True

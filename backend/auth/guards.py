@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import asyncio
+import json
 from typing import Annotated, NamedTuple
 
-from fastapi import Depends, HTTPException, Query, WebSocketException, status
+from fastapi import Depends, HTTPException, WebSocket, WebSocketException, status
 from fastapi.security import HTTPBearer
 from sqlalchemy import select
 from starlette.requests import HTTPConnection
+from starlette.websockets import WebSocketDisconnect
 
 from backend.auth.logins import login_alive, touch
 from backend.auth.tokens import InvalidToken
@@ -133,14 +136,33 @@ async def verify_overlay_token(state: AppState, token: str) -> OverlayGrant:
     return OverlayGrant(device, session_id)
 
 
-async def overlay_grant(
-    conn: HTTPConnection, state: State, token: Annotated[str, Query(min_length=1)]
-) -> OverlayGrant:
-    """Dependency for the overlay's routes (``?token=...``), HTTP or WebSocket."""
+OVERLAY_AUTH_TIMEOUT_S = 5.0  # for the overlay's first message, the one with its token
+OVERLAY_AUTH_MAX_CHARS = 4096
+OLD_LINK = "this overlay link is of an old form (token in the address): ask for a new link"
+
+
+async def overlay_grant(websocket: WebSocket, state: State) -> OverlayGrant:
+    """Dependency for the overlay's WebSocket. Its token never travels in a URL (request
+    lines are logged by servers and proxies): the link carries it after ``#`` (the browser
+    sends no fragment), and the page sends it as the socket's first message,
+    ``{"type": "auth", "token": "..."}``. The socket is therefore accepted here, and a
+    refusal closes it with 1008 and the reason. A token in the query (a link of the old
+    form) is refused as such."""
+    if "token" in websocket.query_params:
+        raise WebSocketException(status.WS_1008_POLICY_VIOLATION, OLD_LINK)
+    await websocket.accept()
+    try:
+        text = await asyncio.wait_for(websocket.receive_text(), OVERLAY_AUTH_TIMEOUT_S)
+        msg = json.loads(text) if len(text) <= OVERLAY_AUTH_MAX_CHARS else None
+        token = msg.get("token") if isinstance(msg, dict) and msg.get("type") == "auth" else None
+    except (TimeoutError, ValueError, KeyError, RuntimeError, WebSocketDisconnect):
+        token = None  # (receive_text raises KeyError/RuntimeError on a binary or a close)
+    if not isinstance(token, str) or not token:
+        raise WebSocketException(status.WS_1008_POLICY_VIOLATION, "no overlay token")
     try:
         return await verify_overlay_token(state, token)
     except OverlayDenied as exc:
-        raise _unauthorized(conn, str(exc)) from None
+        raise WebSocketException(status.WS_1008_POLICY_VIOLATION, str(exc)) from None
 
 
 OverlayAccess = Annotated[OverlayGrant, Depends(overlay_grant)]

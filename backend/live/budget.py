@@ -17,6 +17,14 @@ DEVICE_FLOOR_BYTES = 1 << 20  # a device may always queue this much, whatever th
 ROUND_S = 0.01  # one scheduling round stops after this much loop time; the rest waits a turn
 POLL_SAMPLES = 1000  # samples fed without a poll before the worker polls (~20 ms of work)
 TURN_BYTES = 64 << 10  # payload bytes one device's turn processes at most (at least one message)
+REST_MAX_S = 0.1  # the longest pause after a cut round (a turn that overran by far)
+
+
+def rest_after(round_s: float) -> float:
+    """The loop's free time after a scheduling round that ran ``round_s`` and left work:
+    as long as the round (ingest gets at most half of a saturated loop, requests the rest),
+    at least ``ROUND_S``, at most ``REST_MAX_S``."""
+    return min(max(round_s, ROUND_S), REST_MAX_S)
 
 
 class IngestBudget:

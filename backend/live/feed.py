@@ -11,7 +11,8 @@ Therapist feed (``/api/ws/live``)::
     {"type": "state", "device", "t", "state"}                            immediately
     {"type": "cycle", "device", "start", "end", "outside_fraction", "compensatory", "index"}
 
-Overlay feed (``/api/ws/overlay``): ``state`` and ``cycle`` as above, ``status`` with
+Overlay feed (``/api/ws/overlay``; the page's first message is ``{"type": "auth", "token"}``,
+the link's token, never in the URL): ``state`` and ``cycle`` as above, ``status`` with
 ``heading_converged``, ``convergence_progress``, ``online`` and ``tolerance_m`` only,
 ``estimate`` rows with
 ``t, wrist_x..z, shoulder_displacement_m, dx, dy, state``.

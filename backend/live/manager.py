@@ -38,6 +38,7 @@ from backend.live.device_audit import EventAuditor
 from backend.live.devices import DeviceStats
 from backend.live.hub import Client, Hub, dumps
 from backend.live.ingest import MAX_PAYLOAD_BYTES, Ingest
+from backend.live.memory import TRIM_EVERY_S, release_free_memory
 from backend.live.run import LiveRun, SessionContext, session_params
 from backend.live.store import DbWriter
 from backend.live.wearable_run import WearableLiveRun
@@ -384,6 +385,8 @@ class LiveManager:
                         log.exception("device %s: session files not flushed", w.name)
             if n % round(1.0 / TICK_S) == 0:
                 self._each_second()
+            if n % round(TRIM_EVERY_S / TICK_S) == 0:  # a flood's freed payloads, to the OS
+                await asyncio.to_thread(release_free_memory)
 
     def _each_second(self) -> None:
         now, mono = time.time(), time.monotonic()

@@ -25,7 +25,7 @@ from backend import clinical
 from backend.db.sessions import record_cycle, store_nominal_shoulder
 from backend.deps import LiveUnavailable
 from backend.live import feed
-from backend.live.budget import POLL_SAMPLES, ROUND_S, TURN_BYTES, IngestBudget
+from backend.live.budget import POLL_SAMPLES, ROUND_S, TURN_BYTES, IngestBudget, rest_after
 from backend.live.devices import DeviceStats
 from backend.live.files import SessionFiles
 from backend.live.hub import Hub
@@ -159,12 +159,20 @@ class Scheduler:
     with more work waits for the next round, after the loop's other callbacks. One callback
     for all devices rather than a task each: no task switch and event per message, and a
     burst of a device's messages is fed whole and polled once.
+
+    Under a flood (a round cut short: more than ``ROUND_S`` of work waiting) the next round
+    waits as long as the cut one ran (:func:`backend.live.budget.rest_after`): the loop is
+    then free at least half the time, so a request needing many loop iterations (an HTTP
+    request with database round trips takes ~10) is served in one pause, not one round per
+    iteration (2-3 s for ``/api/health`` under an admitted-name flood, issue 21).
     """
 
     def __init__(self) -> None:
         self._ready: dict[DeviceWorker, None] = {}  # an ordered set
         self._handle: asyncio.Handle | None = None
         self._cut = False  # the last round ran out of time
+        self.rounds = 0  # rounds run
+        self.rests = 0  # pauses after a cut round
 
     def ready(self, worker: DeviceWorker) -> None:
         self._ready[worker] = None
@@ -184,18 +192,26 @@ class Scheduler:
         if self._cut and self._handle is not None:
             return
         self._cut = False
+        self.rounds += 1
         ready, self._ready = self._ready, {}
-        end = time.perf_counter() + ROUND_S  # loop time, never seen by a pipeline
+        start = time.perf_counter()  # loop time, never seen by a pipeline
+        end = start + ROUND_S
         workers = iter(ready)
         for worker in workers:
             worker.turn()
-            if time.perf_counter() > end:
+            now = time.perf_counter()
+            if now > end:
                 rest = dict.fromkeys(workers)
                 self._cut = True
                 if rest:
                     self._ready = {**rest, **self._ready}
-                    if self._handle is None:
-                        self._handle = asyncio.get_running_loop().call_soon(self._scheduled)
+                if self._ready:  # work left (the rest, or a worker's own next turn)
+                    if self._handle is not None:
+                        self._handle.cancel()
+                    self.rests += 1
+                    self._handle = asyncio.get_running_loop().call_later(
+                        rest_after(now - start), self._scheduled
+                    )
                 break
 
 

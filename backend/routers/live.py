@@ -1,8 +1,9 @@
 """Live feeds over WebSocket: the therapists' dashboard and the patient's game overlay.
 
 The message protocol is documented in :mod:`backend.live.feed`. Refusals (no or bad
-credentials, an overlay link whose session ended) close the handshake with 1008; a
-service running without its live side closes with 1013 (try again later).
+credentials, an overlay link whose session ended) close with 1008; a service running
+without its live side closes with 1013 (try again later). The overlay's token comes in the
+socket's first message (:func:`backend.auth.guards.overlay_grant`), never in the URL.
 """
 
 from __future__ import annotations
@@ -129,7 +130,7 @@ async def overlay_feed(websocket: WebSocket, grant: OverlayAccess, state: State)
             f"session:{grant.session_id}",
             {"device": grant.device, "ip": _ip(websocket)},
         )
-    await websocket.accept()
+    # (accepted by the grant: its token comes in the first message, never in the URL)
     client = manager.hub.connect(overlay=(grant.device, grant.session_id))
     try:
         if not manager.is_running(grant.session_id, grant.device):

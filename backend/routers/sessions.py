@@ -319,7 +319,8 @@ async def create_overlay_link(
     audit(db, therapist, "session.overlay_link", f"session:{session.id}", {"device": device})
     await db.commit()
     return OverlayLinkOut(
-        path="/overlay?" + urlencode({"token": issued.token}),
+        # after "#": a browser never sends the fragment, so no request line carries it
+        path="/overlay#" + urlencode({"token": issued.token}),
         token=issued.token,
         expires_at=issued.expires_at,
         device=device,

@@ -1,5 +1,6 @@
 """The guards also protect WebSocket routes (the live feeds are added by the pipeline side):
-a therapist by cookie or bearer header, an overlay by its ``?token=``; refusals close 1008."""
+a therapist by cookie or bearer header, an overlay by the token in its first message (never
+in the URL: a token in the query is refused as an old link); refusals close 1008."""
 
 from __future__ import annotations
 
@@ -34,7 +35,7 @@ def test_guards_on_websockets(tmp_path: Path) -> None:
 
     @app.websocket("/ws/overlay")
     async def overlay_feed(websocket: WebSocket, grant: OverlayAccess) -> None:
-        await websocket.accept()
+        # (accepted by the guard, which read the token from the first message)
         await websocket.send_json({"device": grant.device, "session": grant.session_id})
         await websocket.close()
 
@@ -59,19 +60,27 @@ def test_guards_on_websockets(tmp_path: Path) -> None:
         for headers in ({"Cookie": f"rehab_session={token}"}, {"Authorization": f"Bearer {token}"}):
             with client.websocket_connect("/ws/therapist", headers=headers) as ws:
                 assert ws.receive_json() == {"user": "admin", "pinned": 0}
-        with client.websocket_connect(f"/ws/overlay?token={link['token']}") as ws:
+        with client.websocket_connect("/ws/overlay") as ws:
+            ws.send_json({"type": "auth", "token": link["token"]})
             assert ws.receive_json() == {"device": "dev", "session": sid["id"]}
 
         refused = [
-            ("/ws/therapist", {}),
-            ("/ws/therapist", {"Authorization": f"Bearer {link['token']}"}),
-            (f"/ws/overlay?token={token}", {}),
-            ("/ws/overlay?token=forged", {}),
+            ("/ws/therapist", {}, None),
+            ("/ws/therapist", {"Authorization": f"Bearer {link['token']}"}, None),
+            ("/ws/overlay", {}, {"type": "auth", "token": token}),
+            ("/ws/overlay", {}, {"type": "auth", "token": "forged"}),
+            ("/ws/overlay", {}, {"token": link["token"]}),
+            ("/ws/overlay", {}, [link["token"]]),
+            (f"/ws/overlay?token={link['token']}", {}, None),  # an old link: token in the URL
         ]
-        for path, headers in refused:
+        for path, headers, first in refused:
             with (
                 pytest.raises(WebSocketDisconnect) as exc,
                 client.websocket_connect(path, headers=headers) as ws,
             ):
+                if first is not None:
+                    ws.send_json(first)
                 ws.receive_json()
             assert exc.value.code == 1008, path
+            if "?token=" in path:
+                assert "old form" in exc.value.reason

@@ -456,3 +456,46 @@ def test_rows_do_not_wait_for_the_next_imu_message(short_session: Session) -> No
     assert sh.max() < 1e-3
     el = np.abs(a["elbow_angle_deg"] - b["elbow_angle_deg"])[both]
     assert 0 < el.max() < 0.2
+
+
+def test_imu_without_robot_is_bounded_and_counted(short_session: Session) -> None:
+    """IMU only, polled as the service does: nothing would ever let the pipeline forget it;
+    beyond ``imu_lead_max_s`` it is refused, counted, and what is held stays bounded."""
+    params = PipelineParams(imu_lead_max_s=5.0)
+    imu = [m for m in short_session.messages if isinstance(m, wire.ImuMessage)]
+    span = float(imu[-1].t[-1] - imu[0].t[0])
+    assert span > 20.0  # the test means something only well beyond the cap
+    p = Pipeline(params)
+    for m in imu:
+        p.feed(m)
+        p.poll()
+    rate = len(np.concatenate([m.t for m in imu])) / span
+    assert len(p._imu.tl) <= (5.0 + 0.5) * rate
+    assert p.quality.rejected["imu_without_robot"] > 0
+    assert p.quality.imu_samples <= (5.0 + 0.5) * rate
+
+
+def test_imu_lead_cap_is_the_same_batch_and_streamed(short_session: Session) -> None:
+    """The robot stops for 12 s while the IMU goes on (cap 5 s): IMU is refused, then taken
+    again when the robot is back, and every schedule gives the batch's numbers."""
+    params = PipelineParams(imu_lead_max_s=5.0)
+    msgs = _drop(short_session.messages, 30.0, 42.0, wire.RobotMessage)
+    batch, pb = _run(msgs, params)
+    assert pb.quality.rejected["imu_without_robot"] > 0
+    p = Pipeline(params)
+    out = Output()
+    for m in msgs:
+        p.feed(m)
+        out.extend(p.poll())
+    out.extend(p.finish())
+    _same(out, batch)
+    t = batch.rows["t"]
+    assert batch.rows["heading_converged"][t > t.max() - 5].all()  # the IMU came back
+    # without the cap (default 30 s) nothing is refused
+    _, pd = _run(msgs)
+    assert "imu_without_robot" not in pd.quality.rejected
+
+
+def test_imu_lead_cap_must_be_usable() -> None:
+    with pytest.raises(ValueError):
+        PipelineParams.from_json({"imu_lead_max_s": 0.0})

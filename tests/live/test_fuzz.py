@@ -17,3 +17,4 @@ def test_hostile_payloads_and_flood() -> None:
     assert out["health_failures"] == 0, out
     assert out["health_worst_ms"] < 1000, out  # the API answered within 1 s throughout
     assert out["rss_after_fuzz_mib"] - out["rss_warm_mib"] < 100, out  # memory flat
+    assert out["rss_settled_mib"] - out["rss_before_flood_mib"] < 100, out  # and after the flood

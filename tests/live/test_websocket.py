@@ -78,16 +78,32 @@ def therapist(service: Service, query: str = "") -> Listener:
     )
 
 
-def refused(service: Service, path: str, headers: dict[str, str] | None = None) -> None:
+def refused(
+    service: Service, path: str, headers: dict[str, str] | None = None, first: str | None = None
+) -> str:
     """Refused with close code 1008 after the handshake (what a browser can read), and
-    nothing sent before."""
+    nothing sent before; ``first``: sent first (the overlay's token). Returns the reason."""
     url = ws_url(service, path)
     with (
         connect(url, additional_headers=headers or {}, open_timeout=10) as ws,
         pytest.raises(ConnectionClosed) as exc,
     ):
+        if first is not None:
+            ws.send(first)
         ws.recv(timeout=10)
     assert exc.value.rcvd is not None and exc.value.rcvd.code == 1008, path
+    return exc.value.rcvd.reason
+
+
+def auth(token: str) -> str:
+    """The overlay's first message: its token, never in the URL."""
+    return json.dumps({"type": "auth", "token": token})
+
+
+def overlay_feed(service: Service, token: str) -> ClientConnection:
+    ws = connect(ws_url(service, "/api/ws/overlay"))
+    ws.send(auth(token))
+    return ws
 
 
 def test_live_and_overlay_feeds(service: Service) -> None:
@@ -124,13 +140,16 @@ def live_and_overlay_feeds(service: Service) -> None:
         refused(service, "/api/ws/live")
         refused(service, "/api/ws/live", {"Authorization": f"Bearer {token}"})
         refused(service, f"/api/ws/live?token={token}")
-        refused(service, "/api/ws/overlay")
-        refused(service, "/api/ws/overlay?token=forged")
-        refused(service, f"/api/ws/overlay?token={service.token}")
+        assert refused(service, "/api/ws/overlay") == "no overlay token"
+        refused(service, "/api/ws/overlay", first=auth("forged"))
+        refused(service, "/api/ws/overlay", first=auth(service.token))
+        refused(service, "/api/ws/overlay", first="not json")
+        # a link of the old form (the token in the URL) fails, and says why, valid token or not
+        assert "old form" in refused(service, f"/api/ws/overlay?token={token}")
 
         everything = therapist(service)
         only_other = therapist(service, f"?devices={other}")
-        overlay = Listener(connect(ws_url(service, f"/api/ws/overlay?token={token}")))
+        overlay = Listener(overlay_feed(service, token))
         time.sleep(0.3)
         play(pub, outgoing, speed=20.0)
         for d, s in sims.items():
@@ -229,4 +248,4 @@ def live_and_overlay_feeds(service: Service) -> None:
     assert [c["index"] for c in overlay.of("cycle")] == [c["index"] for c in cycles]
 
     # the link died with the session
-    refused(service, f"/api/ws/overlay?token={token}")
+    assert refused(service, "/api/ws/overlay", first=auth(token)) == "session is not active"

@@ -303,9 +303,11 @@ def test_session_indicator_and_overlay(
     # The patient's screen, through its scoped link.
     page.get_by_role("button", name="Patient screen link").click()
     link = page.get_by_label("Overlay link for the patient's screen").input_value()
-    assert "/overlay?token=" in link
+    assert "/overlay#token=" in link  # after "#": in no request line
     overlay = console.watch(context.new_page())
     overlay.set_viewport_size({"width": 1280, "height": 720})
+    sockets: list[str] = []
+    overlay.on("websocket", lambda ws: sockets.append(ws.url))
     overlay.goto(link)
     page.bring_to_front()
 
@@ -323,6 +325,9 @@ def test_session_indicator_and_overlay(
     )
     page.wait_for_function(f"() => {warning_js}", timeout=3000)
     hold_when(page, warning_js)  # the dashboard keeps showing the warning for its screenshot
+
+    # the overlay's feed took its token from the first message, not from its URL
+    assert sockets and all("token" not in u for u in sockets), sockets
 
     # A compensatory cycle: the overlay tells the patient and pauses the game.
     overlay.bring_to_front()

@@ -238,7 +238,7 @@ export class LiveClient {
   readonly stats: LiveStats = { messages: 0, estimates: {}, frames: {} };
 
   /**
-   * @param path e.g. "/api/ws/live?devices=a,b" or "/api/ws/overlay?token=..."
+   * @param path e.g. "/api/ws/live?devices=a,b" or "/api/ws/overlay"
    * @param defaultDevice for a one-device feed (the overlay): every message goes to it
    * @param onDenied the feed refused us (1008), or ended for good (see ``endsOnNormalClose``)
    * @param endsOnNormalClose a normal close (1000) by the service is the end, not a break to
@@ -250,6 +250,8 @@ export class LiveClient {
     private readonly defaultDevice = "",
     private readonly onDenied?: () => void,
     private readonly endsOnNormalClose = false,
+    /** sent first on every connection (the overlay's token: never in a URL) */
+    private readonly firstMessage?: string,
   ) {
     window.__rehabLive = this.stats;
     this.connect();
@@ -288,6 +290,7 @@ export class LiveClient {
     this.ws = ws;
     this.connection = "connecting";
     ws.onopen = () => {
+      if (this.firstMessage !== undefined) ws.send(this.firstMessage);
       this.connection = "open";
       this.backoff = 500;
       this.changed();

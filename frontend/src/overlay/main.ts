@@ -1,6 +1,7 @@
 // The patient's screen: a game driven by the robot's hand position, with the shoulder
 // indicator in the lower right corner. Large and high-contrast, to be read from 2 m.
-// Opened through the scoped link (/overlay?token=...): it only reads this device's feed.
+// Opened through the scoped link (/overlay#token=...): it only reads this device's feed.
+// The token stays after "#" (never sent in a request) and goes as the socket's first message.
 
 import "../styles.css";
 
@@ -12,7 +13,9 @@ const DEVICE = "overlay";
 const MIN_PAUSE_MS = 3000;
 
 const root = document.getElementById("overlay")!;
-const token = new URLSearchParams(location.search).get("token");
+const token = new URLSearchParams(location.hash.slice(1)).get("token");
+// a link of the old form (/overlay?token=...) is refused by the service: say so here
+const oldLink = new URLSearchParams(location.search).has("token");
 
 function h<K extends keyof HTMLElementTagNameMap>(tag: K, cls: string, text?: string): HTMLElementTagNameMap[K] {
   const e = document.createElement(tag);
@@ -67,17 +70,20 @@ function showBanner(kind: "pause" | "error" | "ended" | null, title = "", text =
   bannerStatus.hidden = !status;
 }
 
-if (!token) {
+if (oldLink) {
+  showBanner("error", "Old link", "This link no longer works. Ask your therapist for a new link.");
+} else if (!token) {
   showBanner("error", "No link", "Open this page through the link from the therapist's dashboard.");
 } else {
   const client = new LiveClient(
-    `/api/ws/overlay?token=${encodeURIComponent(token)}`,
+    "/api/ws/overlay",
     DEVICE,
     () => {
       setPaused(false);
       showBanner("ended", "The session has ended", "Thank you! Ask your therapist for a new link to play again.");
     },
     true,
+    JSON.stringify({ type: "auth", token }),
   );
   const dev = client.device(DEVICE);
   let lastCycles = 0;
