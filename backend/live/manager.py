@@ -70,6 +70,9 @@ DEVICE_QUEUE_BYTES = 32 << 20
 
 
 class LiveManager:
+    # the process answers HTTP: a flood's rounds leave the loop free half the time
+    SERVES_HTTP = True
+
     def __init__(
         self, settings: Settings, database: Database, interrupted: Sequence[int] = ()
     ) -> None:
@@ -82,7 +85,7 @@ class LiveManager:
         self.admission = Admission(settings.admit)  # names beyond it cost nothing persistent
         self.budget = IngestBudget(settings.ingest_max_bytes)  # all devices' queues together
         self.audit_events = EventAuditor(self.db, authenticated=settings.zenoh_config is not None)
-        self.scheduler = Scheduler()
+        self.scheduler = Scheduler(rest=self.SERVES_HTTP)
         self.zio: ZenohIO | None = None
         self.zenoh_error: str | None = None
         self.stats: dict[str, DeviceStats] = {}

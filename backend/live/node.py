@@ -190,6 +190,8 @@ def _cycles_before(run: AnyRun, skip: int) -> list[tuple[int, CycleVerdict]]:
 
 
 class WorkerNode(LiveManager):
+    SERVES_HTTP = False  # its pipelines get the whole loop (Scheduler)
+
     def __init__(
         self, settings: Settings, database: Database, max_devices: int = 0, router: bool = False
     ) -> None:

@@ -167,7 +167,11 @@ class Scheduler:
     iteration (2-3 s for ``/api/health`` under an admitted-name flood, issue 21).
     """
 
-    def __init__(self) -> None:
+    def __init__(self, rest: bool = True) -> None:
+        """``rest``: pause after a cut round (a process that serves HTTP). A worker process
+        (``rehab worker``) serves no requests: it goes on at once, its pipelines get the
+        whole loop."""
+        self._rest = rest
         self._ready: dict[DeviceWorker, None] = {}  # an ordered set
         self._handle: asyncio.Handle | None = None
         self._cut = False  # the last round ran out of time
@@ -210,7 +214,7 @@ class Scheduler:
                         self._handle.cancel()
                     self.rests += 1
                     self._handle = asyncio.get_running_loop().call_later(
-                        rest_after(now - start), self._scheduled
+                        rest_after(now - start) if self._rest else 0.0, self._scheduled
                     )
                 break
 
