@@ -11,12 +11,12 @@ the rows where the angle is available (an empty cell is no error: it is counted 
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from backend.analysis_wearable import read_joints
 from protocol.wire import JOINT_COLUMNS
 
 ANGLES = JOINT_COLUMNS[1:6]
@@ -26,19 +26,6 @@ JOINTS_NAME = "joints.csv"
 
 def is_wearable_analysis(analysis_dir: str | Path) -> bool:
     return (Path(analysis_dir) / JOINTS_NAME).exists()
-
-
-def _read(path: Path) -> dict[str, np.ndarray]:
-    """A CSV with a header row; empty cells become NaN."""
-    with open(path, encoding="utf-8") as fh:
-        header = fh.readline().strip().split(",")
-        rows = [
-            [float(c) if c else math.nan for c in line.rstrip("\n").split(",")]
-            for line in fh
-            if line.strip()
-        ]
-    a = np.array(rows, dtype=np.float64).reshape(-1, len(header))
-    return {name: a[:, j] for j, name in enumerate(header)}
 
 
 def _errors(e: np.ndarray) -> dict[str, float | int | None]:
@@ -57,8 +44,8 @@ def _errors(e: np.ndarray) -> dict[str, float | int | None]:
 def evaluate(
     analysis_dir: str | Path, truth_csv: str | Path, skip_s: float = 2.0
 ) -> dict[str, Any]:
-    est = _read(Path(analysis_dir) / JOINTS_NAME)
-    truth = _read(Path(truth_csv))
+    est = read_joints(Path(analysis_dir) / JOINTS_NAME)
+    truth = read_joints(Path(truth_csv))
     t = est["t"]
     keep = t >= t[0] + skip_s if len(t) else np.zeros(0, dtype=bool)
     out: dict[str, Any] = {"rows": int(keep.sum()), "skip_s": skip_s, "angles_deg": {}}
