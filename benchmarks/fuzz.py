@@ -305,7 +305,7 @@ def run(
         [sys.executable, "-m", "backend.cli", "serve", "--host", "127.0.0.1", "--port", str(port),
          "--zenoh-listen", endpoint, "--data-dir", str(work / "data"), "--log-level", "error",
          *(["--admit", "*"] if admit_flood else ["--admit", f"{GOOD}", "--admit", "evil*"]),
-         *(["--workers", str(workers)] if workers else [])],
+         *(["--workers", str(workers)] if workers else ["--single-process"])],
         cwd=REPO, env=env, stdout=log, stderr=subprocess.STDOUT,
     )  # fmt: skip
     out: dict[str, Any] = {"work": str(work), "workers": workers or 0}

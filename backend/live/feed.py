@@ -38,6 +38,8 @@ from numpy.typing import NDArray
 
 from backend.schemas.live import CycleMsg, IndicatorState, OverlayStatusMsg, StateMsg, StatusMsg
 from estimators.output import RowTable, column_index
+from estimators.wearable.tracker import STD_COLUMNS
+from protocol.wire import JOINT_COLUMNS
 
 Rows = dict[str, list[Any]]
 
@@ -257,30 +259,15 @@ def join(blocks: Sequence[Block]) -> Block:
 
 # A wearable device's rows (``{"type": "joints", "device", "rows": {column: [...]}}``):
 # contract §8's columns, then each angle's standard deviation (its confidence) and flags
-JOINTS_EXTRA = (
-    "shoulder_flexion_std_deg",
-    "shoulder_abduction_std_deg",
-    "shoulder_rotation_std_deg",
-    "elbow_flexion_std_deg",
-    "forearm_pronation_std_deg",
-    "vertical_std_deg",
-    "flags",
-)
-JOINTS_COLUMNS = (
-    "t",
-    "shoulder_flexion_deg",
-    "shoulder_abduction_deg",
-    "shoulder_rotation_deg",
-    "elbow_flexion_deg",
-    "forearm_pronation_deg",
-    "elbow_x",
-    "elbow_y",
-    "elbow_z",
-    "wrist_x",
-    "wrist_y",
-    "wrist_z",
-    *JOINTS_EXTRA,
-)
+JOINTS_EXTRA = (*STD_COLUMNS, "flags")
+JOINTS_COLUMNS = (*JOINT_COLUMNS, *JOINTS_EXTRA)
+
+
+def joints_view(rows: Mapping[str, list[Any]]) -> Rows:
+    """A wearable device's rows for the 3D view: the DH model's elbow and wrist are in S,
+    whose origin is the shoulder joint centre."""
+    zero = [0.0] * len(rows["t"])
+    return {**rows, "shoulder_x": zero, "shoulder_y": zero, "shoulder_z": zero}
 
 
 def joints_block(rows: Mapping[str, NDArray[Any]]) -> Block:

@@ -41,6 +41,7 @@ from backend.live import feed, files, lease
 from backend.live.hub import Client, dumps
 from backend.live.manager import COMMAND_TIMEOUT_S, LiveManager
 from backend.live.node import control_key, feed_key, worker_key
+from backend.live.run import session_params
 from backend.schemas.live import StatusMsg
 from backend.settings import Settings
 from estimators.params import PipelineParams
@@ -246,6 +247,10 @@ class Gateway(LiveManager):
             rows = msg.get("rows")
             if isinstance(rows, dict):
                 self.viz.update(device, rows)
+        elif kind == "joints" and self.viz is not None and self.viz.selected == device:
+            rows = msg.get("rows")
+            if isinstance(rows, dict):
+                self.viz.update(device, feed.joints_view(rows))
         otext: str | None = None
         for c in list(self.hub.clients):
             if not c.wants(device, sid):
@@ -340,8 +345,8 @@ class Gateway(LiveManager):
         # Nothing asked of the workers yet: the session is not committed, and on SQLite the
         # request's transaction holds the database's one write lock, which a worker taking
         # the device's lease needs. The holder starts it in session_committed.
-        if self.viz is not None:
-            params = PipelineParams.from_json(dict(session.params))
+        params = session_params(dict(session.params))
+        if self.viz is not None and isinstance(params, PipelineParams):
             self.viz.configure(
                 session.device,
                 tolerance_m=params.tolerance_m,

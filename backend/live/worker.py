@@ -502,11 +502,8 @@ class DeviceWorker:
             self._hub.rows(dev, sid, feed.joints_block(out.rows), None, kind="joints")
         view = self._view()
         if view is not None and view.selected == dev:
-            # the 3D arm from the joint angles: elbow and wrist of the DH model, in S (the
-            # shoulder joint centre is its origin)
-            rows = feed.as_rows(feed.joints_block(out.rows))
-            zero = [0.0] * out.n
-            view.update(dev, {**rows, "shoulder_x": zero, "shoulder_y": zero, "shoulder_z": zero})
+            # the 3D arm from the joint angles
+            view.update(dev, feed.joints_view(feed.as_rows(feed.joints_block(out.rows))))
         converged = all(live.sure().values())
         if converged != live.converged:
             live.converged = converged
