@@ -4,7 +4,7 @@ Every run simulates its data with the project's simulator (scipy rotations and n
 differentiation, nothing shared with the filter) and filters it with estimators.wearable.
 The paper's figures are printed beside ours. Markdown on stdout.
 
-    python benchmarks/wearable_paper.py [--seeds 3] [--quick] [--only table6,fig5,...]
+    python benchmarks/wearable_paper.py [--seeds 3] [--quick] [--only table6,table6-sens,fig5,...]
 """
 
 from __future__ import annotations
@@ -27,7 +27,11 @@ from simulator.wearable_arm import Mount, imu_readings, joint_positions, rotatio
 
 F64 = np.ndarray
 R_DEFAULT = WearableParams().geometry().R_UI
-NEAR_ELBOW = np.array([0.0, -0.04, -0.28])  # table 6: "the sensor near the elbow"
+NEAR_ELBOW = np.array([0.0, -0.04, -0.28])  # "the sensor near the elbow" of a 30 cm upper arm
+# Table 6 on the paper's own arm, the only one it dimensions (table 7): l3 = 22 cm; §3.3 puts
+# the sensor "near elbow": l_u3 = 20 cm down the arm, l_u5 = 2 cm off its axis (the strap).
+PAPER_UPPER_M = 0.22
+PAPER_NEAR_ELBOW = np.array([0.0, -0.02, -0.20])
 AT_SHOULDER = np.zeros(3)  # §3.1: "the sensor on the shoulder centre of rotation"
 SIG_G = np.radians(np.sqrt(0.1))  # table 5
 SIG_A = 0.1
@@ -61,12 +65,13 @@ def one_segment(
     acc_bias: float = 0.0,
     gyr_bias_dps: float = 0.0,
     cam_var: float | None = None,
+    upper_m: float = 0.30,
     **kw: Any,
 ) -> tuple[F64, F64]:
     """Paper §3's one-segment case (shoulder flexion θ0 only); returns (t, error deg)."""
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, dur, 1.0 / fs)
-    g, a = imu_readings(theta_fn, t, 0, Mount(imu_pos, R_DEFAULT), 0.30)
+    g, a = imu_readings(theta_fn, t, 0, Mount(imu_pos, R_DEFAULT), upper_m)
     g = g + rng.normal(0, SIG_G, g.shape) + np.array([0.0, 0.0, np.radians(gyr_bias_dps)])
     a = a + rng.normal(0, SIG_A, a.shape) + np.array([0.0, acc_bias, 0.0])  # IMU y: forward
     msgs: list[tuple[str, F64, F64, F64]] = [("upperarm", t, g, a)]
@@ -77,11 +82,12 @@ def one_segment(
         forearm=False,
         gyro_bias=False,
         upperarm_imu=mount,
+        upper_arm_length_m=upper_m,
         max_acc_ms2=1e4,
         max_gyro_rads=1e3,
     )
     if cam_var is not None:
-        e, _ = joint_positions(theta_fn(t), 0.30, 0.25)
+        e, _ = joint_positions(theta_fn(t), upper_m, 0.25)
         e = e + rng.normal(0, np.sqrt(cam_var), e.shape)
         msgs = [("camera", t, e, e), ("upperarm", t, g, a)]
         params["sigma_pos_m"] = float(np.sqrt(cam_var))
@@ -108,20 +114,26 @@ def ms(v: list[float]) -> str:
     return f"{np.mean(v):.2f}° ± {np.std(v):.2f}°"
 
 
+def table6_run(model: str, fs: float, dur: float, seed: int, **kw: Any) -> tuple[float, float]:
+    """One table 6 trial on the paper's arm: RMSE and PE (°) after the amplitude ramp.
+    ``centre_deg`` moves the sine's centre; the other keywords go to :func:`one_segment`."""
+    centre = float(kw.pop("centre_deg", 0.0))
+    kw.setdefault("imu_pos", PAPER_NEAR_ELBOW)
+    theta = moves.flexion_sine(90.0, 1.0, REST, centre)
+    t, e = one_segment(theta, fs, dur, seed, model=model, upper_m=PAPER_UPPER_M, **kw)
+    return rmse_pe(e[t >= REST + 1.0])
+
+
 def table6(seeds: int, dur: float) -> None:
     print(
-        "### Table 6: body-acceleration compensation (one segment, θ0 = 90°·sin 2πt after 2 s rest and a one-period ramp, IMU 28 cm down the arm; errors after the ramp)\n"
+        "### Table 6: body-acceleration compensation (one segment, θ0 = 90°·sin 2πt after 2 s rest and a one-period ramp; table 7's arm, l3 = 22 cm, IMU 20 cm down it and 2 cm off its axis; errors after the ramp)\n"
     )
     print("| rate | method | RMSE (ours) | PE (ours) | RMSE (paper) | PE (paper) | target |")
     print("|---|---|---|---|---|---|---|")
     for fs in (1000.0, 100.0):
         for model in "ABC":
-            r, p = [], []
-            for s in range(seeds):
-                t, e = one_segment(moves.flexion_sine(90.0, 1.0, REST), fs, dur, s, model=model)
-                a, b = rmse_pe(e[t >= REST + 1.0])
-                r.append(a)
-                p.append(b)
+            runs = [table6_run(model, fs, dur, s) for s in range(seeds)]
+            r, p = [x[0] for x in runs], [x[1] for x in runs]
             pm = PAPER_T6[model]
             target = "≤ 0.25°" if model == "A" else f"{0.7 * pm[0]:.2f}–{1.3 * pm[0]:.2f}°"
             ok = (
@@ -131,6 +143,62 @@ def table6(seeds: int, dur: float) -> None:
                 f"| {fs:g} Hz | {model} | {ms(r)} | {ms(p)} | {pm[0]}° ± {pm[1]}° | {pm[2]}° ± {pm[3]}° | {target} {'✓' if ok else '✗'} |"
             )
     print()
+
+
+def _random_walk(step_ms2: float) -> dict[str, float]:
+    """Model B's body acceleration as a random walk (F = I, as eq. 3 writes the paper's own
+    GM-1 of θ̈) of σ ``step_ms2`` per 1 ms step: a GM-1 of very long τ with the same Q."""
+    tau = 1e6
+    return {"body_acc_tau_s": tau, "body_acc_sigma_ms2": step_ms2 * np.sqrt(tau / 2e-3)}
+
+
+def table6_sensitivity(dur: float) -> None:
+    """What moves models B and C: one reading changed at a time (1 kHz, seed 0)."""
+    print(
+        f"### Table 6 sensitivity (1 kHz, one seed, {dur:g} s; table 6's trial with one reading changed)\n"
+    )
+    print("| reading changed | model | RMSE | PE |")
+    print("|---|---|---|---|")
+    d = float(-PAPER_NEAR_ELBOW[2])
+    cases: list[tuple[str, str, dict[str, Any]]] = [
+        ("none (table 6 above)", "C", {}),
+        ("none (table 6 above)", "B", {}),
+    ]
+    for r in (0.0, 0.14, 0.28, 0.36, 0.42):
+        cases.append(
+            (f"IMU {r * 100:g} cm down the arm", "C", {"imu_pos": np.array([0.0, -0.02, -r])})
+        )
+    for r in (0.28, 0.42):  # 42 cm: table 7's l3 + l6, the forearm IMU's place on a straight arm
+        cases.append(
+            (f"IMU {r * 100:g} cm down the arm", "B", {"imu_pos": np.array([0.0, -0.02, -r])})
+        )
+    for sd in (0.01, 0.001):
+        cases.append(
+            (f"order-1 process noise σθ̇ {sd:g} °/s per step", "C", {"sigma_dtheta_dps": sd})
+        )
+    cases.append(
+        (
+            "σθ̇ 0.001 °/s per step, IMU on the shoulder centre",
+            "C",
+            {"sigma_dtheta_dps": 0.001, "imu_pos": AT_SHOULDER},
+        )
+    )
+    cases.append(("sine centred on the horizontal arm (90° ± 90°)", "C", {"centre_deg": 90.0}))
+    cases.append(("sine centred on the horizontal arm (90° ± 90°)", "B", {"centre_deg": 90.0}))
+    for tau, sig in ((0.05, 5.0), (1.0, 5.0), (0.2, 1.0), (0.2, 20.0)):
+        cases.append(
+            (
+                f"GM-1 τ {tau:g} s, σ {sig:g} m/s²",
+                "B",
+                {"body_acc_tau_s": tau, "body_acc_sigma_ms2": sig},
+            )
+        )
+    for step in (0.2, 0.5, 1.0):
+        cases.append((f"random walk, σ {step:g} m/s² per 1 ms step", "B", _random_walk(step)))
+    for label, model, kw in cases:
+        rm, pe = table6_run(model, 1000.0, dur, 0, **kw)
+        print(f"| {label} | {model} | {rm:.2f}° | {pe:.2f}° |")
+    print(f"\n_(table 6 IMU: {d * 100:g} cm down a {PAPER_UPPER_M * 100:g} cm arm)_\n")
 
 
 def fig5(dur: float) -> None:
@@ -350,7 +418,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--quick", action="store_true", help="shorter runs (a few minutes)")
-    ap.add_argument("--only", default="table6,fig5,fig6,fig8,wheel,drift,speed")
+    ap.add_argument("--only", default="table6,table6-sens,fig5,fig6,fig8,wheel,drift,speed")
     a = ap.parse_args(argv)
     only = set(a.only.split(","))
     q = a.quick
@@ -360,6 +428,8 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     if "table6" in only:
         table6(a.seeds, 6.0 if q else 10.0)
+    if "table6-sens" in only:
+        table6_sensitivity(6.0)
     if "fig5" in only:
         fig5(5.0 if q else 8.0)
     if "fig6" in only:

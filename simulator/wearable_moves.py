@@ -39,16 +39,20 @@ def keyframes(times: list[float], poses_deg: list[list[float]]) -> ThetaFn:
     return fn
 
 
-def flexion_sine(amp_deg: float = 90.0, freq_hz: float = 1.0, rest_s: float = 0.0) -> ThetaFn:
-    """Paper §3: ``θ0 = A·sin(2π f t)``, the other joints at zero. With ``rest_s`` > 0 the
-    arm rests until then and the amplitude ramps in smoothly over one period (no kink)."""
+def flexion_sine(
+    amp_deg: float = 90.0, freq_hz: float = 1.0, rest_s: float = 0.0, centre_deg: float = 0.0
+) -> ThetaFn:
+    """Paper §3: ``θ0 = c + A·sin(2π f t)``, the other joints at zero. With ``rest_s`` > 0 the
+    arm rests until then and the centre ``c`` and the amplitude ramp in smoothly over one
+    period (no kink)."""
 
     def fn(t: F64) -> F64:
         t = np.atleast_1d(np.asarray(t, dtype=np.float64))
         out = np.zeros((len(t), 5))
         s = t - rest_s
         ramp = _minjerk(s * freq_hz) if rest_s > 0 else np.ones_like(t)
-        out[:, 0] = np.radians(amp_deg) * ramp * np.sin(2 * np.pi * freq_hz * s)
+        wave = np.radians(centre_deg) + np.radians(amp_deg) * np.sin(2 * np.pi * freq_hz * s)
+        out[:, 0] = ramp * wave
         return out
 
     return fn
