@@ -59,6 +59,15 @@ def w_default():
     return Rotation.from_quat([0.5, 0.5, -0.5, 0.5]).as_matrix()
 
 
+def test_flexion_sine_rests_then_swings_about_its_centre():
+    fn = moves.flexion_sine(90.0, 1.0, rest_s=2.0, centre_deg=90.0)
+    t = np.array([0.0, 1.9, 3.0, 3.25, 3.5, 3.75])
+    th = np.degrees(fn(t))
+    np.testing.assert_allclose(th[:2, 0], 0.0, atol=1e-12)  # at rest in the zero pose
+    np.testing.assert_allclose(th[2:, 0], [90.0, 180.0, 90.0, 0.0], atol=1e-9)  # 90° ± 90°
+    assert np.all(th[:, 1:] == 0.0)
+
+
 def test_shoulder_wheel_inverse_kinematics_puts_the_hand_on_the_wheel():
     wheel = moves.Wheel()
     phi = np.linspace(0, 2 * np.pi, 37)
