@@ -20,7 +20,14 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 # what `rehab analyze` needs, one group each (each includes what it imports first)
-GROUPS = ("numpy", "vqf", "scipy.sparse", "scipy.signal", "backend.analysis")
+GROUPS = ("numpy", "vqf", "numba", "backend.analysis")
+# numba's first call of a compiled (cached) function: it loads numba's registries, and with
+# them scipy.linalg (numba's BLAS check) and cffi's parser when those are installed
+FIRST_CALL = (
+    "import time, numpy as np; from estimators.filters import LowPass; t = time.perf_counter(); "
+    "LowPass(5, 0.5, 25.0)(np.zeros((4, 3)), np.zeros((3, 2, 3))); "
+    "print(time.perf_counter() - t)"
+)
 
 
 def run(args: list[str], env: dict[str, str]) -> tuple[float, float]:
@@ -90,6 +97,19 @@ def main(argv: list[str] | None = None) -> int:
         f"{args.repeat}): "
         + ", ".join(f"{g} {min(c.get(g, 0.0) for c in costs):.2f} s" for g in GROUPS)
     )
+    first = [
+        float(
+            subprocess.run(
+                [sys.executable, "-c", FIRST_CALL],
+                env=env,
+                check=True,
+                capture_output=True,
+                text=True,
+            ).stdout
+        )
+        for _ in range(args.repeat)
+    ]
+    print(f"numba's first compiled call (cached): {min(first):.2f} s (fastest of {args.repeat})")
     print(f"load average: {', '.join(f'{x:.1f}' for x in os.getloadavg())}")
     return 0
 

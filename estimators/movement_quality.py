@@ -30,14 +30,14 @@ positions (``lowpass_hz``; None for the raw path) keeps sensor noise out of the 
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 from typing import TypeAlias
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import signal
+
+from estimators import filters, peaks
 
 Array: TypeAlias = NDArray[np.float64]
 
@@ -151,29 +151,18 @@ def movement_units(speed: Array, prominence: float = 0.1, min_prominence: float 
         return 0
     floor = max(prominence * float(np.max(v)), min_prominence)
     # zero-padded at both ends so a movement cut mid-peak by the cycle's boundary counts
-    peaks, _ = signal.find_peaks(np.concatenate(([0.0], v, [0.0])), prominence=floor)
-    return int(len(peaks))
-
-
-@functools.lru_cache(maxsize=64)
-def _lowpass(order: int, cutoff_hz: float, fs: float) -> Array:
-    """Butterworth low-pass as second-order sections (designing them cost more than
-    filtering a cycle; the grid repeats from cycle to cycle)."""
-    sos: Array = signal.butter(order, cutoff_hz, fs=fs, output="sos")
-    sos.setflags(write=False)  # shared by every call
-    return sos
+    return len(peaks.find_peaks(np.concatenate(([0.0], v, [0.0])), floor))
 
 
 def filtfilt(x: Array, order: int, cutoff_hz: float, fs: float) -> Array:
     """Zero-lag Butterworth low-pass of ``x`` (N, k) along axis 0: scipy's ``sosfiltfilt``
-    with its default odd extension, the pad shortened for a cycle shorter than it."""
-    sos = _lowpass(order, cutoff_hz, fs)
+    with its default odd extension, the pad shortened for a cycle shorter than it
+    (:func:`.filters.filtfilt`)."""
+    sos = filters.butter_sos(order, cutoff_hz, fs)
     pad = min(3 * (2 * len(sos) + 1), len(x) - 1)
     if pad <= 0:
         return x
-    # a copy: the cached design stays read-only, and scipy's sosfilt wants a writable one
-    out: Array = signal.sosfiltfilt(sos.copy(), x, axis=0, padlen=pad)
-    return out
+    return filters.filtfilt(sos, x, pad)
 
 
 def uniform_path(

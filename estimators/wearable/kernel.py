@@ -15,13 +15,11 @@ Behzadipour 2016).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from typing import Any, TypeVar, cast
+from typing import Any
 
-import numba
 import numpy as np
 
-_Fn = TypeVar("_Fn", bound=Callable[..., Any])
+from estimators.jit import jit, jit_inline
 
 G = 9.81
 HALF_PI = 0.5 * math.pi
@@ -31,16 +29,6 @@ R_U3 = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 
 # sensor slots of the (6, 3) value and (6, 15, 3) Jacobian arrays
 GYR_U, ACC_U, GYR_F, ACC_F, ELBOW, WRIST = range(6)
-
-
-def jit(fn: _Fn) -> _Fn:
-    """numba's ``njit`` (cached on disk), typed for mypy as the function itself."""
-    return cast(_Fn, numba.njit(cache=True, nogil=True)(fn))
-
-
-def jit_inline(fn: _Fn) -> _Fn:
-    """:func:`jit` for the small helpers, inlined into their callers."""
-    return cast(_Fn, numba.njit(cache=True, nogil=True, inline="always")(fn))
 
 
 @jit_inline
