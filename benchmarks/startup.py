@@ -53,6 +53,34 @@ def import_costs(env: dict[str, str]) -> dict[str, float]:
     return out
 
 
+# what a compiled (numba) stage would add to `rehab analyze`: numba's import, then the first
+# call of a kernel cached on disk (it loads numba's CPU target, which imports scipy.linalg)
+_NUMBA = """
+import time
+import backend.analysis
+import numpy as np
+c0, w0 = time.process_time(), time.perf_counter()
+import numba
+c1, w1 = time.process_time(), time.perf_counter()
+from estimators.wearable import kernel
+kernel.pose(np.zeros(5), 0.3, 0.25)
+c2, w2 = time.process_time(), time.perf_counter()
+print(w1 - w0, c1 - c0, w2 - w1, c2 - c1)
+"""
+
+
+def numba_costs(env: dict[str, str], repeat: int) -> tuple[float, float, float, float]:
+    """After ``backend.analysis``: numba's import and a cached kernel's first call (wall and
+    CPU s each, fastest of ``repeat`` processes; the first run fills the cache)."""
+    args = [sys.executable, "-c", _NUMBA]
+    subprocess.run(args, env=env, check=True, capture_output=True)
+    runs = [
+        tuple(float(x) for x in subprocess.check_output(args, env=env, text=True).split())
+        for _ in range(repeat)
+    ]
+    return min(runs, key=lambda r: r[0] + r[2])  # type: ignore[return-value]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -89,6 +117,11 @@ def main(argv: list[str] | None = None) -> int:
         "imports, each after the previous (fastest of "
         f"{args.repeat}): "
         + ", ".join(f"{g} {min(c.get(g, 0.0) for c in costs):.2f} s" for g in GROUPS)
+    )
+    iw, ic, fw, fc = numba_costs(env, args.repeat)
+    print(
+        f"numba after backend.analysis (not imported by it): import {iw:.2f} s wall "
+        f"({ic:.2f} CPU), a cached kernel's first call {fw:.2f} s wall ({fc:.2f} CPU)"
     )
     print(f"load average: {', '.join(f'{x:.1f}' for x in os.getloadavg())}")
     return 0
