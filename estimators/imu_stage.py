@@ -315,7 +315,8 @@ class ImuStage:
         """The buffer's segment id, q_IA, ω_A and dω_A as floats, made once for many
         look-ups behind the mirror (an analysis's rows)."""
         self._flush()
-        rows = self._rows_list = self.buf.view()[:, self.SEG : self.DW + 3].tolist()
+        rows: list[list[float]] = self.buf.view()[:, self.SEG : self.DW + 3].tolist()
+        self._rows_list = rows
         return rows
 
     def _dw(self, k: int) -> list[float]:
