@@ -50,17 +50,18 @@ class ImuStage:
     then costs no buffer copy), and a mirror of the newest samples in Python floats for
     single rows (:meth:`at`), which index it without any numpy call."""
 
-    # buffer columns: t, segment id, q_IA (4), the 6D filter's sensor orientation q_IS (4),
-    # specific force in the sensor frame (3), paper method's eq. 1–2 acceleration (3), the
-    # gyro in frame A and its backward difference (3 + 3: predict q_IA past the newest sample)
+    # buffer columns: t, segment id, q_IA (4), the gyro in frame A and its backward
+    # difference (3 + 3: predict q_IA past the newest sample), the 6D filter's sensor
+    # orientation q_IS (4), specific force in the sensor frame (3), paper method's eq. 1–2
+    # acceleration (3). SEG to DW, together, are what a row looks up (:meth:`_list_rows`).
     T = 0
     SEG = 1
     Q = 2  # 4
-    QS = 6  # 4
-    ACC = 10  # 3
-    V = 13  # 3
-    W = 16  # 3
-    DW = 19  # 3
+    W = 6  # 3
+    DW = 9  # 3
+    QS = 12  # 4
+    ACC = 16  # 3
+    V = 19  # 3
     WIDTH = 22
 
     def __init__(self, p: PipelineParams) -> None:
@@ -320,11 +321,17 @@ class ImuStage:
             )
         rows = self._rows_list
         if rows is None or i >= len(rows):
-            # many look-ups behind the mirror (an analysis's rows): the buffer as floats once
-            self._flush()
-            rows = self._rows_list = self.buf.view()[:, : self.WIDTH].tolist()
+            rows = self._list_rows()
         r = rows[i]
-        return r[2:6], r[16:19], r[19:22], r[1]
+        return r[1:5], r[5:8], r[8:11], r[0]
+
+    def _list_rows(self) -> list[list[float]]:
+        """The buffer's segment id, q_IA, ω_A and dω_A as floats, made once for many
+        look-ups behind the mirror (an analysis's rows)."""
+        self._flush()
+        rows: list[list[float]] = self.buf.view()[:, self.SEG : self.DW + 3].tolist()
+        self._rows_list = rows
+        return rows
 
     def _dw(self, k: int) -> list[float]:
         """dω_A of mirror sample ``k``: the backward difference ``_flush`` takes (the same
@@ -452,9 +459,12 @@ class ImuStage:
         if k >= 0:  # both in the mirror (the live case): one slice
             q01, (seg0, seg1) = self._mq[4 * k : 4 * k + 8], self._mseg[k : k + 2]
             q0, q1 = q01[:4], q01[4:]
-        else:
-            q0, _, _, seg0 = self._sample(i0)
-            q1, _, _, seg1 = self._sample(i1c)
+        else:  # older samples (an analysis's rows): their segment and q_IA from the buffer
+            buf = self._rows_list
+            if buf is None or i1c >= len(buf):
+                buf = self._list_rows()
+            r0, r1 = buf[i0], buf[i1c]
+            seg0, q0, seg1, q1 = r0[0], r0[1:5], r1[0], r1[1:5]
         t0 = tl[i0]
         a = (s - t0) / (tl[i1c] - t0)
         a = 0.0 if a < 0.0 else 1.0 if a > 1.0 else a  # as np.clip (NaN passes)

@@ -132,6 +132,7 @@ class Pipeline:
         self._segmenter = CycleSegmenter(CycleParams(mode=p.cycle_mode))
         self._judge = CycleJudge(self._cp)
         self._episodes = EpisodeTracker(self._cp)
+        self._timing = p.angle_timing  # a property: read once, not per row
         self._xc_prev_t = -math.inf
         self._xc_prev: Sequence[float] = (0.0, 0.0, 0.0)
         self._grid_trimmed = -math.inf
@@ -564,7 +565,7 @@ class Pipeline:
         sh = rows.shoulder(p_e, x_a, la)
         nom = self._nominal.nominal_at(t, sh, h_good, k)
         angle, disp, conv, elev, azim = rows.angles(x_now, x_c, p_e, sh, nom, p.displacement_norm)
-        if p.angle_timing != "fresh":
+        if self._timing != "fresh":
             angle = self._angle(x_now, x_a, x_c, prev, t - prev_t, latency)
         if not with_imu:
             self.quality.rows_without_imu += 1
@@ -606,7 +607,7 @@ class Pipeline:
         ``dt`` earlier) so both segments describe the same instant; ``fresh`` pairs them as
         they are; ``paired`` uses the upper arm at the robot's instant.
         """
-        mode = self.params.angle_timing
+        mode = self._timing
         if mode == "paired":
             return rows.angle_deg(x_pair, x_c)
         if mode == "extrapolate":
