@@ -31,6 +31,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import orjson
 import zenoh
 from sqlalchemy import Engine, func, select
@@ -71,6 +72,7 @@ QUEUE_LIMIT = 0.5  # a device queue this full (fraction): falling behind
 RECOVER_LINES = 8192  # the recording's newest lines compared with a device's cache
 RECOVER_MAX_AGE_S = 30.0  # a device's cached messages older than this are not asked for
 FRESH_START_S = 5.0  # a session started by query this recently may not be committed yet
+WAITS_LOG_S = 10.0  # the samples' waits are logged this often
 TAKE_PER_STEP = 8  # new leases per lease step at most (back-pressure is checked between steps)
 
 
@@ -275,6 +277,7 @@ class WorkerNode(LiveManager):
         )
         self._lease_thread.start()
         self._tasks.append(asyncio.create_task(self._reconcile_loop(), name="worker-sessions"))
+        self._tasks.append(asyncio.create_task(self._log_waits(), name="worker-waits"))
         log.info("worker %s started", self.held.holder)
 
     def _worker_seen(self, holder: str, alive: bool) -> None:
@@ -355,6 +358,38 @@ class WorkerNode(LiveManager):
             return any(w.queued > limit for w in list(self.workers.values()))
         except RuntimeError:  # the loop changed the dict meanwhile: ask again next step
             return True
+
+    async def _log_waits(self) -> None:
+        """Every ``WAITS_LOG_S``, where the samples waited (docs/scaling.md): in the device
+        queues (arrival in the receiving thread to the device's turn) and the turns' loop
+        time, and the snapshots taken on a turn."""
+        sched = self.scheduler
+        while True:
+            await asyncio.sleep(WAITS_LOG_S)
+            waits, turns = np.array(sched.waits), np.array(sched.turns)
+            sched.waits.clear()
+            sched.turns.clear()
+            if not len(waits) or not len(turns):
+                continue
+            w = np.percentile(waits, [50, 99]) * 1e3
+            t = np.percentile(turns, [50, 99]) * 1e3
+            taken = self.snapshots.taken_s
+            log.info(
+                "last %.0f s: %d turns, queue wait p50 %.1f p99 %.1f max %.1f ms; turn p50 %.2f"
+                " p99 %.1f max %.1f ms; loop lag %.0f ms; %d snapshots taken (max %.1f ms)",
+                WAITS_LOG_S,
+                len(turns),
+                w[0],
+                w[1],
+                waits.max() * 1e3,
+                t[0],
+                t[1],
+                turns.max() * 1e3,
+                self.lag_s * 1e3,
+                len(taken),
+                max(taken, default=0.0) * 1e3,
+            )
+            taken.clear()
 
     async def _measure_lag(self) -> None:
         loop = asyncio.get_running_loop()

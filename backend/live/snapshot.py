@@ -29,9 +29,12 @@ from __future__ import annotations
 import asyncio
 import hashlib
 import logging
+import math
 import os
 import shutil
 import struct
+import time
+import zlib
 from collections import Counter
 from dataclasses import dataclass
 from functools import cache
@@ -54,6 +57,9 @@ log = logging.getLogger(__name__)
 VERSION = 1
 MAGIC = b"REHAB-SNAPSHOT\n"
 EVERY_S = 30.0  # default interval, seconds of the device's data
+# A worker's captures at least this far apart (loop time, never seen by a pipeline): a
+# capture holds the loop tens of ms, so two in a row would delay every device's turn twice.
+GAP_S = 0.1
 SUFFIX = ".snap"
 # the classes a session's run is made of (the pipeline's, the report's, the run's)
 MODULES = (
@@ -141,11 +147,20 @@ def _externals(run: LiveRun) -> dict[str, Any]:
     }
 
 
-def capture(run: LiveRun, epoch: int) -> tuple[Path, bytes]:
-    """The run's snapshot file now (its files flushed first): ``(path, content)``. Runs
-    on the device's turn (the state must not move meanwhile); writing is :func:`write`'s,
-    off the loop. Raises :class:`estimators.state.StateError` if the state is not plain
-    data (a bug: counted by the caller, the session goes on)."""
+@dataclass(frozen=True)
+class Taken:
+    """A run's state at one instant (:func:`take`), not yet sealed into a file's content
+    (:func:`seal`: the body's digest and the header, in a thread)."""
+
+    path: Path
+    header: dict[str, Any]  # every field of the header but the body's size and digest
+    body: bytes
+
+
+def take(run: LiveRun, epoch: int) -> Taken:
+    """The run's state now (its files flushed first): what must happen on the device's turn
+    (the state must not move meanwhile). Raises :class:`estimators.state.StateError` if the
+    state is not plain data (a bug: counted by the caller, the session goes on)."""
     assert run.session is not None and run.files is not None
     # the rows waiting to be formatted (up to 1024 polls' worth of small arrays) go to the
     # files now rather than into the state: the same text (formatting is batch-invariant),
@@ -154,20 +169,36 @@ def capture(run: LiveRun, epoch: int) -> tuple[Path, bytes]:
     marks = run.files.marks()
     body = state.dump(run, _externals(run), MODULES)
     info = run.session.info
-    header = _Header(
-        version=VERSION,
-        code=fingerprint(),
-        session=info.id,
-        epoch=epoch,
-        t=float(run.latest_t if run.latest_t is not None else float("nan")),
-        params=params_digest(dict(info.params)),
-        marks=(tuple(marks.recording), tuple(marks.estimates), tuple(marks.details)),
-        size=len(body),
-        sha256=hashlib.sha256(body).hexdigest(),
-    )
-    head = msgspec.json.encode(header)
+    header = {
+        "version": VERSION,
+        "code": fingerprint(),
+        "session": info.id,
+        "epoch": epoch,
+        "t": float(run.latest_t if run.latest_t is not None else float("nan")),
+        "params": params_digest(dict(info.params)),
+        "marks": (tuple(marks.recording), tuple(marks.estimates), tuple(marks.details)),
+    }
     name = f"{marks.recording.lines:012d}.e{epoch}{SUFFIX}"
-    return run.files.state_dir / name, MAGIC + struct.pack("<I", len(head)) + head + body
+    return Taken(run.files.state_dir / name, header, body)
+
+
+def seal(taken: Taken) -> bytes:
+    """The snapshot file's content (hashing a 3.6 MB body takes ~7 ms: off the turn)."""
+    body = taken.body
+    header = _Header(**taken.header, size=len(body), sha256=hashlib.sha256(body).hexdigest())
+    head = msgspec.json.encode(header)
+    return MAGIC + struct.pack("<I", len(head)) + head + body
+
+
+def capture(run: LiveRun, epoch: int) -> tuple[Path, bytes]:
+    """The run's snapshot file now: ``(path, content)`` (:func:`take` and :func:`seal`)."""
+    taken = take(run, epoch)
+    return taken.path, seal(taken)
+
+
+def write_taken(taken: Taken) -> None:
+    """:func:`seal`, then :func:`write` (the holder's thread)."""
+    write(taken.path, seal(taken))
 
 
 def write(path: Path, content: bytes) -> None:
@@ -290,19 +321,31 @@ def prepare(
     return Prepared(LiveRun(device, prefix, DeviceStats(device), context, staged), staged, 0, None)
 
 
+def phase(device: str) -> float:
+    """Where in the interval a device's first snapshot falls, in [0, 1): devices that
+    start together (a clinic's morning, a benchmark) do not all capture in the same
+    seconds, every interval after (each capture holds the worker's loop tens of ms)."""
+    return zlib.crc32(device.encode()) / 2**32
+
+
 class Snapshotter:
     """The holder's side: a snapshot of each running session every ``every_s`` seconds of
-    its data, captured on the device's turn (a few ms: the state is copied), written by a
-    thread. At most one write per session in flight (a slow disk skips, counted). Counts
-    in ``counts``: written, busy (skipped), failed."""
+    its data (the first ``phase(device) * every_s`` after the holder's first turn of the
+    session), taken on the device's turn (the state is copied), sealed and written by a
+    thread. A worker's captures are ``GAP_S`` apart at least (a due one waits for a later
+    turn). At most one write per session in flight (a slow disk skips, counted). Counts in
+    ``counts``: written, busy (skipped), deferred (waited for the gap), failed."""
 
-    def __init__(self, every_s: float = EVERY_S) -> None:
+    def __init__(self, every_s: float = EVERY_S, gap_s: float = GAP_S) -> None:
         self.every_s = every_s
+        self.gap_s = gap_s
         if every_s > 0:
             fingerprint()  # now, not on a device's turn
         self.counts: Counter[str] = Counter()
         self._next: dict[int, float] = {}  # session → stream time of its next snapshot
         self._busy: set[int] = set()
+        self._last = -math.inf  # loop time of the last capture
+        self.taken_s: list[float] = []  # loop time of each capture (the worker's log clears it)
 
     def after_turn(self, run: LiveRun, epoch: int, alive: Any) -> None:
         """Called after each turn of a device: a snapshot if one is due."""
@@ -315,23 +358,30 @@ class Snapshotter:
         due = self._next.get(sid)
         if due is None or t < due:
             if due is None:
-                self._next[sid] = t + self.every_s
+                self._next[sid] = t + self.every_s * phase(run.device)
             return
+        now = time.perf_counter()
+        if now - self._last < self.gap_s:
+            self.counts["deferred"] += 1
+            return  # due still: the device's next turn tries again
         self._next[sid] = t + self.every_s
         if sid in self._busy:
             self.counts["busy"] += 1
             return
         if not alive():
             return
+        self._last = now
         try:
-            path, content = capture(run, epoch)
+            taken = take(run, epoch)
+            if len(self.taken_s) < 1000:
+                self.taken_s.append(time.perf_counter() - now)
         except Exception:
             self.counts["failed"] += 1
             log.exception("session %d: snapshot not taken", sid)
             return
         self._busy.add(sid)
         loop = asyncio.get_running_loop()
-        fut = loop.run_in_executor(None, write, path, content)
+        fut = loop.run_in_executor(None, write_taken, taken)
 
         def done(f: asyncio.Future[None]) -> None:
             self._busy.discard(sid)

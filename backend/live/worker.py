@@ -43,6 +43,7 @@ from protocol import wire
 log = logging.getLogger(__name__)
 
 BATCH = 64  # messages per turn before the other devices get theirs
+WAITS_KEPT = 1 << 14  # turns' waits and durations kept for the worker's log (a few seconds)
 
 
 class RowsView(Protocol):
@@ -177,6 +178,10 @@ class Scheduler:
         self._cut = False  # the last round ran out of time
         self.rounds = 0  # rounds run
         self.rests = 0  # pauses after a cut round
+        # where a sample waits, for the worker's periodic log (bounded: the newest kept):
+        # per turn, the oldest message's wait since its arrival (wall) and the turn's loop time
+        self.waits: deque[float] = deque(maxlen=WAITS_KEPT)
+        self.turns: deque[float] = deque(maxlen=WAITS_KEPT)
 
     def ready(self, worker: DeviceWorker) -> None:
         self._ready[worker] = None
@@ -201,9 +206,12 @@ class Scheduler:
         start = time.perf_counter()  # loop time, never seen by a pipeline
         end = start + ROUND_S
         workers = iter(ready)
+        turns, t0 = self.turns, start
         for worker in workers:
             worker.turn()
             now = time.perf_counter()
+            turns.append(now - t0)
+            t0 = now
             if now > end:
                 rest = dict.fromkeys(workers)
                 self._cut = True
@@ -332,6 +340,10 @@ class DeviceWorker:
     def turn(self) -> None:
         if self.closed or self.paused:
             return
+        if self._queue:
+            head = self._queue[0]
+            if type(head) is RawMessage:
+                self._scheduler.waits.append(time.time() - head.arrival)
         if not self.alive():  # the lease is no longer surely ours: drop, never process
             kept: deque[RawMessage | Command] = deque(
                 c for c in self._queue if isinstance(c, Command)

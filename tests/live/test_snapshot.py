@@ -279,12 +279,17 @@ def test_the_holder_snapshots_by_stream_time_off_the_loop(
     tmp_path: Path, msgs: list[tuple[str, bytes]]
 ) -> None:
     """The worker's side: after each turn, a snapshot once ``every_s`` of data has passed
-    since the last (the first due ``every_s`` after the session's first sample), written by
-    a thread; none while the lease is not surely held; a takeover resumes from it."""
+    since the last (the first due ``phase(device) * every_s`` after the session's first
+    sample), written by a thread; none while the lease is not surely held; a takeover
+    resumes from it."""
     import asyncio
 
+    first = snapshot.phase(DEVICE) * EVERY_S
+    assert 0 < first < 30  # the 100 s below: due at first, first + 20 (held), ...
+    assert first + EVERY_S < 50 < first + 2 * EVERY_S
+
     async def run_holder() -> snapshot.Snapshotter:
-        snaps = snapshot.Snapshotter(every_s=EVERY_S)
+        snaps = snapshot.Snapshotter(every_s=EVERY_S, gap_s=0.0)
         files = SessionFiles(tmp_path, 1)
         run = LiveRun(DEVICE, "rehab", DeviceStats(DEVICE), _context(), files)
         held = [True]
@@ -302,10 +307,53 @@ def test_the_holder_snapshots_by_stream_time_off_the_loop(
         return snaps
 
     snaps = asyncio.run(run_holder())
-    # 100 s of data: due at 20, 40 (held), then 60, 80 with the lease not held
+    # 100 s of data: due at `first` and 20 s later (held), then twice with the lease not held
     assert snaps.counts["written"] == 2, snaps.counts
     (only,) = snapshot.candidates(tmp_path / "recordings" / "1.jsonl.gz")
     assert only.name.endswith(".e4.snap")
     ready, rejected, _ = _take_over(tmp_path, [], epoch=5)
     assert ready.snapshot == only and not rejected
     assert _outputs(tmp_path) == _uninterrupted(tmp_path / "c", msgs)
+
+
+def test_a_workers_captures_are_spread_and_never_back_to_back(
+    tmp_path: Path, msgs: list[tuple[str, bytes]]
+) -> None:
+    """Devices that start together capture at different moments of the interval (their
+    phase), and a capture due within ``gap_s`` of the worker's previous one waits for a
+    later turn of its device: it is deferred, not skipped."""
+    import asyncio
+
+    names = [f"bench{i:03d}" for i in range(50)]
+    phases = sorted(snapshot.phase(n) for n in names)
+    assert phases[0] < 0.1 and phases[-1] > 0.9  # spread over the whole interval
+    assert len(set(phases)) == len(phases)
+
+    async def two_devices() -> tuple[snapshot.Snapshotter, list[float]]:
+        snaps = snapshot.Snapshotter(every_s=EVERY_S, gap_s=3600.0)
+        runs = [
+            LiveRun(DEVICE, "rehab", DeviceStats(DEVICE), _context(sid), SessionFiles(d, sid))
+            for sid, d in ((1, tmp_path / "a"), (2, tmp_path / "b"))
+        ]
+        for key, payload in msgs[: len(msgs) // 2]:  # 50 s: both due (same device name)
+            for run in runs:
+                _feed(run, key, payload)
+                snaps.after_turn(run, 1, lambda: True)
+            await asyncio.sleep(0)
+        while snaps._busy:
+            await asyncio.sleep(0.01)
+        snaps.gap_s = 0.0  # the gap has passed: the deferred one goes on the next turn
+        snaps.after_turn(runs[1], 1, lambda: True)
+        while snaps._busy:
+            await asyncio.sleep(0.01)
+        for run in runs:
+            run.files.flush()
+        return snaps, [snaps._next[1], snaps._next[2]]
+
+    snaps, due = asyncio.run(two_devices())
+    assert snaps.counts["written"] == 2, snaps.counts  # the first at once, then the deferred
+    assert snaps.counts["deferred"] > 0
+    # the first is next due one interval after it was taken; the deferred one after its own
+    assert due[0] < due[1]
+    assert len(snapshot.candidates(tmp_path / "a" / "recordings" / "1.jsonl.gz")) == 1
+    assert len(snapshot.candidates(tmp_path / "b" / "recordings" / "2.jsonl.gz")) == 1
