@@ -84,8 +84,12 @@ class Cluster:
             except httpx.HTTPError:
                 return False
 
-        wait_for(healthy, timeout=60, what="service up")
-        wait_for(lambda: len(self.workers()) == workers, what="workers started")
+        try:
+            wait_for(healthy, timeout=60, what="service up")
+            wait_for(lambda: len(self.workers()) == workers, what="workers started")
+        except BaseException:
+            self.stop()  # the caller never gets the object: stop what started
+            raise
 
     def workers(self) -> list[int]:
         return [p for p in children(self.proc.pid) if "rehab worker" in cmdline(p)]
@@ -97,11 +101,15 @@ class Cluster:
 
     def stop(self) -> None:
         if self.proc.poll() is None:
+            left = self.workers()
             self.proc.send_signal(signal.SIGTERM)
             try:
                 self.proc.wait(40)
             except subprocess.TimeoutExpired:
                 self.proc.kill()
+                for pid in left:  # a killed node cannot stop its workers: no orphans
+                    with contextlib.suppress(ProcessLookupError):
+                        os.kill(pid, signal.SIGKILL)
 
 
 class Estimates:
