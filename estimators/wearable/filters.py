@@ -13,7 +13,7 @@ from typing import Literal
 
 import numpy as np
 
-from estimators.wearable import kernel
+from estimators.wearable import kernel, mounting
 from estimators.wearable.dh import F64
 from estimators.wearable.model import Measurement, Model
 
@@ -34,7 +34,12 @@ def ekf_update(model: Model, x: F64, P: F64, m: Measurement) -> tuple[F64, F64, 
 def ekf_step(model: Model, x: F64, P: F64, ts: float, m: Measurement) -> tuple[F64, F64, float]:
     """:func:`predict` over ``ts`` s (none if ``ts`` ≤ 0), then :func:`ekf_update`."""
     z, have = model.slots(m)
-    xn, Pn, nis = kernel.ekf_step_packed(x, P, ts, z, have, *model.packed)
+    if model.i_mu.size:  # the product's mounting states (.mounting)
+        xn, Pn, nis = mounting.ekf_step(
+            x, P, ts, z, have, *model.packed, model.mis_idx, model.mis_basis
+        )
+    else:
+        xn, Pn, nis = kernel.ekf_step_packed(x, P, ts, z, have, *model.packed)
     return xn, Pn, float(nis)
 
 

@@ -20,7 +20,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from estimators.wearable import dh, kernel
+from estimators.wearable import dh, kernel, mounting
 from estimators.wearable.dh import F64, I64
 from estimators.wearable.params import WearableParams
 
@@ -68,6 +68,10 @@ class Model:
     r_slot: F64  # (6,) noise variance of each slot's rows (eq. 19)
     geo_args: tuple[float, float, F64, F64, F64, F64]  # lu, lf, r_u, R_UI, r_f, R_FI
     packed: tuple[I64, F64]  # all of the above for kernel.ekf_step_packed / kernel.emit
+    i_mu: I64  # mounting-misalignment states (.mounting)
+    i_mf: I64
+    mis_idx: I64  # (6, 3) δ states of each slot's IMU, −1: none
+    mis_basis: F64  # (6, 3, 3) their directions in the IMU frame (.mounting)
 
     @classmethod
     def build(cls, p: WearableParams) -> Model:
@@ -90,6 +94,20 @@ class Model:
         i_bf = take(3 if p.gyro_bias and order >= 1 and use_f else 0)
         i_au = take(3 if p.model == "B" else 0)
         i_af = take(3 if p.model == "B" and use_f else 0)
+        i_mu = take(3 if p.mounting_states else 0)
+        i_mf = take(2 if p.mounting_states and use_f else 0)
+        mis_idx = np.full((6, 3), -1, dtype=np.intp)
+        basis = np.zeros((6, 3, 3))
+        for slots, idx in (
+            ((kernel.GYR_U, kernel.ACC_U), i_mu),
+            ((kernel.GYR_F, kernel.ACC_F), i_mf),
+        ):
+            if idx.size:
+                # upper arm: every axis; forearm: across its long axis only (.mounting)
+                b = np.eye(3) if idx is i_mu else _across_long_axis(p.geometry().R_FI)
+                for slot in slots:
+                    mis_idx[slot, : idx.size] = idx
+                    basis[slot, :, : idx.size] = b
         src: list[int] = []
         dst: list[int] = []
         for c, j in enumerate(joints):
@@ -121,6 +139,8 @@ class Model:
         q_rate[top] = (sig * DEG) ** 2 / p.q_ref_dt_s
         q_rate[i_bu] = (p.gyro_bias_walk_dps_per_sqrt_s * DEG) ** 2
         q_rate[i_bf] = (p.gyro_bias_walk_dps_per_sqrt_s * DEG) ** 2
+        q_rate[i_mu] = (p.mounting_walk_deg_per_sqrt_s * DEG) ** 2
+        q_rate[i_mf] = (p.mounting_walk_deg_per_sqrt_s * DEG) ** 2
         sg, sa, sp = (p.sigma_gyr_dps * DEG) ** 2, p.sigma_acc_ms2**2, p.sigma_pos_m**2
         geo = p.geometry()
         f = np.float64
@@ -175,6 +195,10 @@ class Model:
             r_slot,
             geo_args,
             packed,
+            i_mu,
+            i_mf,
+            mis_idx,
+            basis,
         )
 
     # ------------------------------------------------------------------ process (eqs. 3, 4)
@@ -211,6 +235,8 @@ class Model:
         var[self.i_bf] = (p.gyro_bias_sigma_dps * DEG) ** 2
         var[self.i_au] = (0.1 * p.body_acc_sigma_ms2) ** 2
         var[self.i_af] = (0.1 * p.body_acc_sigma_ms2) ** 2
+        var[self.i_mu] = (p.mounting_sigma_deg * DEG) ** 2
+        var[self.i_mf] = (p.mounting_sigma_deg * DEG) ** 2
         return x, np.diag(var)
 
     def full_theta(self, x: F64) -> tuple[F64, F64, F64]:
@@ -261,5 +287,17 @@ class Model:
     def predict_rows(self, x: F64, m: Measurement, jacobian: bool = True) -> tuple[F64, F64]:
         """``h(x)`` and its Jacobian ``H`` (rows as :meth:`rows`, columns the state)."""
         _, have = self.slots(m)
-        h, H = kernel.measure(x, have, *self.measure_args(jacobian))
+        if self.i_mu.size:
+            h, H = mounting.measure(x, have, *self.packed, self.mis_idx, self.mis_basis, jacobian)
+        else:
+            h, H = kernel.measure(x, have, *self.measure_args(jacobian))
         return h, (H if jacobian else np.zeros((0, self.n)))
+
+
+def _across_long_axis(r_seg_imu: F64) -> F64:
+    """Two unit vectors (3, 2) in the IMU frame across the segment's long axis (the segment
+    frame's z): the directions of the mounting states (:mod:`.mounting`)."""
+    a = r_seg_imu.T @ np.array([0.0, 0.0, 1.0])
+    u = np.cross(a, np.eye(3)[int(np.argmin(np.abs(a)))])
+    u /= np.linalg.norm(u)
+    return np.column_stack((u, np.cross(a, u)))

@@ -2,7 +2,8 @@
 
 Noise defaults are the paper's table 5: σ_θ̈² = 1 (°/s²)² per 1 ms step, σ_ω² = 0.1 (°/s)²,
 σ_a² = 0.01 (m/s²)², σ_p² = 1e-4 m². The paper's model is ``model="A"`` with
-``gyro_bias=False``; the product's default adds gyro-bias states (see :mod:`.model`).
+``gyro_bias=False, mounting_states=False``; the product's default adds gyro-bias states (see
+:mod:`.model`) and mounting-misalignment states (:mod:`.mounting`).
 """
 
 from __future__ import annotations
@@ -106,6 +107,11 @@ class WearableParams:
     gyro_bias: bool = True
     gyro_bias_sigma_dps: float = 0.5  # prior σ of each bias component
     gyro_bias_walk_dps_per_sqrt_s: float = 0.002
+    # product: each IMU's mounting misalignment as three small-angle states (off = the paper's
+    # model, which takes the mounting as exact; see :mod:`.mounting`)
+    mounting_states: bool = True
+    mounting_sigma_deg: float = 5.0  # prior σ of each component (a strap's few degrees)
+    mounting_walk_deg_per_sqrt_s: float = 0.01  # slow change (skin and strap creep)
     # The EKF's own P is overconfident about the whole arm's turn about the vertical (it takes
     # information from linearising at a slightly tilted estimate): the reported confidence
     # adds a drift bound that grows at this rate (a residual gyro bias about the vertical) and
