@@ -19,10 +19,12 @@ import contextlib
 import json
 import logging
 import os
+import re
 import signal
 import subprocess
 import sys
 import time
+from collections import deque
 from collections.abc import Sequence
 from typing import Any, cast
 
@@ -51,6 +53,10 @@ log = logging.getLogger(__name__)
 WORKERS_START_S = 60.0
 START_RETRY_S = 5.0  # a session start asks for a holder this long (then: workers' reconcile)
 START_RETRY_PERIOD_S = 0.1
+# The start of a worker's rows message (the hub writes type and device first): enough to
+# drop one that nobody on this node watches without decoding its ~20 columns. A message
+# that does not match is decoded in full.
+ROWS_HEAD = re.compile(rb'\{"type":"(?:estimate|joints)","device":"([^"]+)"')
 
 
 def _die_with_parent() -> None:  # pragma: no cover (runs in the child before exec)
@@ -107,6 +113,8 @@ class Gateway(LiveManager):
         self.last_status: dict[str, str] = {}
         self.session_of: dict[str, int | None] = {}
         self._feed_sub: Any = None
+        self._feed_buf: deque[bytes] = deque()
+        self._feed_scheduled = False
         self._command: list[str] = []
         self._env: dict[str, str] = {}
 
@@ -116,7 +124,13 @@ class Gateway(LiveManager):
         if self.zio is not None and self.zio.session is not None:
 
             def on_feed(sample: zenoh.Sample) -> None:
-                loop.call_soon_threadsafe(self._on_feed, sample.payload.to_bytes())
+                # one wake-up of the loop per burst (~1 250 messages a second at 50
+                # devices): a wake-up per message cost the loop more than the messages
+                self._feed_buf.append(sample.payload.to_bytes())
+                if not self._feed_scheduled:
+                    self._feed_scheduled = True
+                    with contextlib.suppress(RuntimeError):  # loop closed: shutting down
+                        loop.call_soon_threadsafe(self._drain_feed)
 
             self._feed_sub = self.zio.session.declare_subscriber(feed_key(self.prefix), on_feed)
         s = self.settings
@@ -226,10 +240,27 @@ class Gateway(LiveManager):
 
     # ------------------------------------------------------------------ WebSockets
 
+    def _drain_feed(self) -> None:
+        self._feed_scheduled = False  # first: a message from now on schedules another drain
+        buf = self._feed_buf
+        while buf:
+            self._on_feed(buf.popleft())
+
+    def _watched(self, device: str) -> bool:
+        """A socket of this node or its 3D view wants ``device``'s rows."""
+        if self.viz is not None and self.viz.selected == device:
+            return True
+        sid = self.session_of.get(device)
+        return any(c.wants(device, sid) for c in self.hub.clients)
+
     def _on_feed(self, data: bytes) -> None:
         """A worker's dashboard message: to the therapists' sockets as it is; to the
         session's overlays as the one-process hub would send them (their status, their
-        columns of the rows); the rows of the device on screen to the 3D view."""
+        columns of the rows); the rows of the device on screen to the 3D view. Rows nobody
+        here watches are dropped undecoded."""
+        head = ROWS_HEAD.match(data)
+        if head is not None and not self._watched(head[1].decode()):
+            return
         try:
             msg = orjson.loads(data)
             device = msg["device"]
