@@ -2,14 +2,28 @@
 
 Three processes besides this one: the service (``rehab serve``, SQLite, a session on every
 device so recording and cycle storage are part of the load), a publisher (all devices:
-100 Hz IMU in messages of 4 samples, 25 Hz robot, the devices starting over 5 s), and a
-subscriber (``rehab/*/estimate`` on Zenoh, and the therapists' WebSocket feed).
+100 Hz IMU in messages of 4 samples, 25 Hz robot, the devices starting at random instants
+over 5 s), and a subscriber (``rehab/*/estimate`` on Zenoh, and the therapists' WebSocket
+feed). Publisher and subscriber stand for devices and screens on other machines: they do
+the least per message they can (the subscriber notes arrival time and bytes, and decodes
+after the run); their CPU is reported (``load_generator_cpu_percent``).
+
+A message leaves when its newest sample is taken (``simulator.publish``). A device's robot
+and IMU run on clocks of their own, so where a robot sample falls between two IMU messages
+(each covers 40 ms) differs between devices: each device's robot is sampled at one of
+``PHASES`` offsets spread over the robot period (``SimConfig.robot_time_offset_s``), so a
+robot sample arrives 0–35 ms after the IMU message before it.
 
 The publisher notes the wall time at which it sent each robot sample, the subscriber the
 wall time at which the estimate row of that sample arrived (matched by device and ``t``).
-Latency = arrival − send, same machine, same clock. It includes the wait for the IMU
-message that covers the robot sample (the pipeline needs both; up to one IMU message
-period, 40 ms at 100 Hz × 4) and, on the WebSocket, the 30 Hz decimation.
+Latency = arrival − send, same machine, same clock; ``publisher_late_ms`` is how late the
+publisher itself sent them (not in the latency). The pipeline decides a robot sample when
+the IMU has reached it, or (product method) when the newest IMU sample is at most
+``imu_predict_s`` = 50 ms older, the upper arm predicted from it: longer than an IMU
+message's 40 ms, so a sample waits for the IMU only if the IMU message comes late. (The
+paper's method, ``imu_predict_s`` 0, would wait for the IMU message that covers the sample:
+0–35 ms at these phases; the one phase used before, robot 10 ms after the IMU message, made
+it 30 ms for all.) On the WebSocket the 30 Hz decimation adds to it.
 
     python benchmarks/latency.py                       # 50 devices, 120 s
     python benchmarks/latency.py --devices 20 --duration 60 --json out.json
@@ -42,6 +56,7 @@ TARGET_P99_MS = 50.0
 WARMUP_S = 10.0  # excluded from the steady-state figures (process start, first polls)
 START_SPREAD_S = 5.0  # devices start within this (the converged heading-update interval)
 PHASES = 8  # robot-to-IMU phases of the devices (see publisher)
+START_DECIMALS = 3  # device start times in whole milliseconds (see publisher)
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 PAGE = os.sysconf("SC_PAGE_SIZE")
 
@@ -86,12 +101,19 @@ def publisher(args: argparse.Namespace) -> None:
         name = device_name(i)
         pub.announce(name)
         # Devices start their sessions at moments of their own over one heading-update
-        # interval (as a clinic's would), each on its own clock from 0: at random instants,
-        # not on a grid (START_SPREAD_S * i / 50 is a multiple of half the robot period, so
-        # half the devices would send at the same millisecond). --lockstep: all within one
-        # robot period, so every periodic cost of the pipelines (heading updates, cycle
-        # verdicts) falls on the same instant: the worst case.
-        start = robot_period * i / n if args.lockstep else START_SPREAD_S * rng.random()
+        # interval (as a clinic's would), each on its own clock from 0: at random
+        # milliseconds, not on a grid (START_SPREAD_S * i / 50 is a multiple of half the
+        # robot period: half the devices sent at the same instant). Whole milliseconds: the
+        # samples' times are on a 5 ms grid, so messages leave on a 1 ms grid, at most 1 000
+        # wake-ups of this process a second (continuous starts: one per message, 2 500 a
+        # second, and 1.7 times the CPU). --lockstep: all within one robot period, so every periodic cost of
+        # the pipelines (heading updates, cycle verdicts) falls on the same instant: the
+        # worst case.
+        start = (
+            robot_period * i / n
+            if args.lockstep
+            else round(START_SPREAD_S * rng.random(), START_DECIMALS)
+        )
         puts: dict[str, Any] = {}
         for m in templates[i % phases]:
             put = puts.get(m.key)
