@@ -106,9 +106,9 @@ def publisher(args: argparse.Namespace) -> None:
         # robot period: half the devices sent at the same instant). Whole milliseconds: the
         # samples' times are on a 5 ms grid, so messages leave on a 1 ms grid, at most 1 000
         # wake-ups of this process a second (continuous starts: one per message, 2 500 a
-        # second, and 2.3 times the CPU). --lockstep: all within one robot period, so every periodic cost of
-        # the pipelines (heading updates, cycle verdicts) falls on the same instant: the
-        # worst case.
+        # second, and 2.3 times the CPU). --lockstep: all within one robot period, so every
+        # periodic cost of the pipelines (heading updates, cycle verdicts) falls on the same
+        # instant: the worst case.
         start = (
             robot_period * i / n
             if args.lockstep
