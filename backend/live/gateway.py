@@ -24,7 +24,6 @@ import signal
 import subprocess
 import sys
 import time
-from collections import deque
 from collections.abc import Sequence
 from typing import Any, cast
 
@@ -113,8 +112,6 @@ class Gateway(LiveManager):
         self.last_status: dict[str, str] = {}
         self.session_of: dict[str, int | None] = {}
         self._feed_sub: Any = None
-        self._feed_buf: deque[bytes] = deque()
-        self._feed_scheduled = False
         self._command: list[str] = []
         self._env: dict[str, str] = {}
 
@@ -124,13 +121,7 @@ class Gateway(LiveManager):
         if self.zio is not None and self.zio.session is not None:
 
             def on_feed(sample: zenoh.Sample) -> None:
-                # one wake-up of the loop per burst (~1 250 messages a second at 50
-                # devices): a wake-up per message cost the loop more than the messages
-                self._feed_buf.append(sample.payload.to_bytes())
-                if not self._feed_scheduled:
-                    self._feed_scheduled = True
-                    with contextlib.suppress(RuntimeError):  # loop closed: shutting down
-                        loop.call_soon_threadsafe(self._drain_feed)
+                loop.call_soon_threadsafe(self._on_feed, sample.payload.to_bytes())
 
             self._feed_sub = self.zio.session.declare_subscriber(feed_key(self.prefix), on_feed)
         s = self.settings
@@ -239,12 +230,6 @@ class Gateway(LiveManager):
         await super().close()
 
     # ------------------------------------------------------------------ WebSockets
-
-    def _drain_feed(self) -> None:
-        self._feed_scheduled = False  # first: a message from now on schedules another drain
-        buf = self._feed_buf
-        while buf:
-            self._on_feed(buf.popleft())
 
     def _watched(self, device: str) -> bool:
         """A socket of this node or its 3D view wants ``device``'s rows."""
