@@ -2,14 +2,28 @@
 
 Three processes besides this one: the service (``rehab serve``, SQLite, a session on every
 device so recording and cycle storage are part of the load), a publisher (all devices:
-100 Hz IMU in messages of 4 samples, 25 Hz robot, the devices starting over 5 s), and a
-subscriber (``rehab/*/estimate`` on Zenoh, and the therapists' WebSocket feed).
+100 Hz IMU in messages of 4 samples, 25 Hz robot, the devices starting at random instants
+over 5 s), and a subscriber (``rehab/*/estimate`` on Zenoh, and the therapists' WebSocket
+feed). Publisher and subscriber stand for devices and screens on other machines: they do
+the least per message they can (the subscriber notes arrival time and bytes, and decodes
+after the run); their CPU is reported (``load_generator_cpu_percent``).
+
+A message leaves when its newest sample is taken (``simulator.publish``). A device's robot
+and IMU run on clocks of their own, so where a robot sample falls between two IMU messages
+(each covers 40 ms) differs between devices: each device's robot is sampled at one of
+``PHASES`` offsets spread over the robot period (``SimConfig.robot_time_offset_s``), so a
+robot sample arrives 0–35 ms after the IMU message before it.
 
 The publisher notes the wall time at which it sent each robot sample, the subscriber the
 wall time at which the estimate row of that sample arrived (matched by device and ``t``).
-Latency = arrival − send, same machine, same clock. It includes the wait for the IMU
-message that covers the robot sample (the pipeline needs both; up to one IMU message
-period, 40 ms at 100 Hz × 4) and, on the WebSocket, the 30 Hz decimation.
+Latency = arrival − send, same machine, same clock; ``publisher_late_ms`` is how late the
+publisher itself sent them (not in the latency). The pipeline decides a robot sample when
+the IMU has reached it, or (product method) when the newest IMU sample is at most
+``imu_predict_s`` = 50 ms older, the upper arm predicted from it: longer than an IMU
+message's 40 ms, so a sample waits for the IMU only if the IMU message comes late. (The
+paper's method, ``imu_predict_s`` 0, would wait for the IMU message that covers the sample:
+0–35 ms at these phases; the one phase used before, robot 10 ms after the IMU message, made
+it 30 ms for all.) On the WebSocket the 30 Hz decimation adds to it.
 
     python benchmarks/latency.py                       # 50 devices, 120 s
     python benchmarks/latency.py --devices 20 --duration 60 --json out.json
@@ -30,6 +44,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -39,7 +54,9 @@ from serving import wait_healthy  # benchmarks/ is the script's own directory
 REPO = Path(__file__).resolve().parents[1]
 TARGET_P99_MS = 50.0
 WARMUP_S = 10.0  # excluded from the steady-state figures (process start, first polls)
-START_SPREAD_S = 5.0  # device i starts i/N of this after the first (the converged update interval)
+START_SPREAD_S = 5.0  # devices start within this (the converged heading-update interval)
+PHASES = 8  # robot-to-IMU phases of the devices (see publisher)
+START_DECIMALS = 3  # device start times in whole milliseconds (see publisher)
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 PAGE = os.sysconf("SC_PAGE_SIZE")
 
@@ -64,42 +81,79 @@ def publisher(args: argparse.Namespace) -> None:
     from simulator import SimConfig, simulate
     from simulator.publish import Publisher, prepare
 
-    sim = simulate(SimConfig(seed=1, duration_s=args.duration + 1.0, device="tmpl"))
-    template = prepare(sim.messages)
     n = args.devices
-    schedule: list[tuple[float, int, str, bytes, float | None]] = []
+    cfg = SimConfig(seed=1, duration_s=args.duration + 1.0, device="tmpl")
+    robot_period = 1.0 / cfg.robot_rate_hz
+    # A device's robot and IMU run on clocks of their own: where a robot sample falls
+    # between two IMU messages differs from device to device. PHASES templates, each the
+    # same motion with the robot sampled that much later (robot_time_offset_s), cover the
+    # robot period evenly. --lockstep: all the same (phase 0), the worst case.
+    phases = 1 if args.lockstep else min(n, PHASES)
+    templates = [
+        prepare(simulate(replace(cfg, robot_time_offset_s=robot_period * k / phases)).messages)
+        for k in range(phases)
+    ]
+    rng = np.random.default_rng(1)
+    pub = Publisher.connect(args.endpoint)
+    # (release time, device, the key's put, payload, robot sample time or None)
+    schedule: list[tuple[float, int, Any, bytes, float | None]] = []
     for i in range(n):
         name = device_name(i)
-        # Devices start their sessions at different moments (over one heading-update
-        # interval, as a clinic's would), each on its own clock from 0. --lockstep: all
-        # within one robot period, so every periodic cost of the 50 pipelines (heading
-        # updates, cycle verdicts) falls on the same instant: the worst case.
-        phase = (0.04 if args.lockstep else START_SPREAD_S) * i / n
-        for m in template:
-            key = m.key.replace("/tmpl/", f"/{name}/", 1)
+        pub.announce(name)
+        # Devices start their sessions at moments of their own over one heading-update
+        # interval (as a clinic's would), each on its own clock from 0: at random
+        # milliseconds, not on a grid (START_SPREAD_S * i / 50 is a multiple of half the
+        # robot period: half the devices sent at the same instant). Whole milliseconds: the
+        # samples' times are on a 5 ms grid, so messages leave on a 1 ms grid, at most 1 000
+        # wake-ups of this process a second (continuous starts: one per message, 2 500 a
+        # second, and 2.3 times the CPU). --lockstep: all within one robot period, so every
+        # periodic cost of the pipelines (heading updates, cycle verdicts) falls on the same
+        # instant: the worst case.
+        start = (
+            robot_period * i / n
+            if args.lockstep
+            else round(START_SPREAD_S * rng.random(), START_DECIMALS)
+        )
+        puts: dict[str, Any] = {}
+        for m in templates[i % phases]:
+            put = puts.get(m.key)
+            if put is None:
+                key = m.key.replace("/tmpl/", f"/{name}/", 1)
+                put = puts[m.key] = pub.declare_key(key).put
             robot_t = m.at if m.key.endswith("/robot") else None
-            schedule.append((m.at + phase, i, key, m.payload, robot_t))
+            schedule.append((m.at + start, i, put, m.payload, robot_t))
     schedule.sort(key=lambda x: (x[0], x[1]))
-    pub = Publisher.connect(args.endpoint)
-    for i in range(n):
-        pub.announce(device_name(i))
-    for _, _, key, _, _ in schedule[: n * 200]:
-        pub.declare_key(key)
     ok = pub.wait_for_subscribers(30.0)
     print("ready" if ok else "ready (no subscriber!)", flush=True)
     sys.stdin.readline()  # "go"
     sent: list[list[tuple[float, float]]] = [[] for _ in range(n)]
+    late: list[float] = []  # how long after its time each robot sample went out (s)
+    cpu0 = time.process_time()
     t0 = schedule[0][0]
-    base = time.monotonic() + 0.2
-    for at, i, key, payload, robot_t in schedule:
-        delay = base + (at - t0) - time.monotonic()
+    base = time.monotonic() + 0.2 - t0
+    monotonic, sleep = time.monotonic, time.sleep
+    to_wall = time.time() - time.monotonic()  # one clock read per message, not two
+    for at, i, put, payload, robot_t in schedule:
+        delay = base + at - monotonic()
         if delay > 0:
-            time.sleep(delay)
-        pub.put(key, payload)
+            sleep(delay)
+        put(payload)
         if robot_t is not None:
-            sent[i].append((robot_t, time.time()))
-    late = time.monotonic() - (base + schedule[-1][0] - t0)
-    Path(args.out).write_text(json.dumps({"sent": sent, "messages": len(schedule), "late_s": late}))
+            now = monotonic()
+            sent[i].append((robot_t, now + to_wall))
+            late.append(now - base - at)
+    end_late = monotonic() - (base + schedule[-1][0])
+    Path(args.out).write_text(
+        json.dumps(
+            {
+                "sent": sent,
+                "late": late,
+                "messages": len(schedule),
+                "late_s": end_late,
+                "cpu_s": time.process_time() - cpu0,
+            }
+        )
+    )
     time.sleep(1.0)
     pub.close()
     print("done", flush=True)
@@ -115,20 +169,22 @@ def subscriber(args: argparse.Namespace) -> None:
 
     from protocol.zenoh_config import make_config
 
-    zrecv: dict[str, list[tuple[float, float]]] = {}
-    wrecv: dict[str, list[tuple[float, float]]] = {}
-    by_holder: dict[str, int] = {}  # estimate rows by publishing worker (the attachment)
-    lock = threading.Lock()
+    # arrival (wall time) and payload; decoded after the run, so that the callbacks of
+    # this process (which shares the two cores with the service) do the least they can
+    zraw: list[tuple[float, str, bytes, bytes | None]] = []
+    wraw: list[tuple[float, str]] = []
 
     def on_estimate(sample: zenoh.Sample) -> None:
         now = time.time()
-        device = str(sample.key_expr).split("/")[1]
-        rows = orjson.loads(sample.payload.to_bytes())
         att = sample.attachment
-        holder = att.to_bytes().decode().rsplit(":", 1)[0] if att is not None else ""
-        with lock:
-            zrecv.setdefault(device, []).extend((t, now) for t in rows["t"])
-            by_holder[holder] = by_holder.get(holder, 0) + len(rows["t"])
+        zraw.append(
+            (
+                now,
+                str(sample.key_expr),
+                sample.payload.to_bytes(),
+                att.to_bytes() if att is not None else None,
+            )
+        )
 
     session = zenoh.open(make_config(connect=args.endpoint, mode="peer"))
     sub = session.declare_subscriber("rehab/*/estimate", on_estimate)
@@ -144,10 +200,7 @@ def subscriber(args: argparse.Namespace) -> None:
                     text = ws.recv(timeout=0.5)
                 except TimeoutError:
                     continue
-                now = time.time()
-                msg = orjson.loads(text)
-                if msg["type"] == "estimate":
-                    wrecv.setdefault(msg["device"], []).extend((t, now) for t in msg["rows"]["t"])
+                wraw.append((time.time(), str(text)))
 
     ws_thread = threading.Thread(target=websocket, daemon=True)
     ws_thread.start()
@@ -157,10 +210,21 @@ def subscriber(args: argparse.Namespace) -> None:
     ws_thread.join(5)
     sub.undeclare()  # type: ignore[no-untyped-call]
     session.close()  # type: ignore[no-untyped-call]
-    with lock:
-        Path(args.out).write_text(
-            json.dumps({"zenoh": zrecv, "websocket": wrecv, "by_holder": by_holder})
-        )
+    zrecv: dict[str, list[tuple[float, float]]] = {}
+    wrecv: dict[str, list[tuple[float, float]]] = {}
+    by_holder: dict[str, int] = {}  # estimate rows by publishing worker (the attachment)
+    for now, key, payload, att in zraw:
+        t = orjson.loads(payload)["t"]
+        zrecv.setdefault(key.split("/")[1], []).extend((x, now) for x in t)
+        holder = att.decode().rsplit(":", 1)[0] if att is not None else ""
+        by_holder[holder] = by_holder.get(holder, 0) + len(t)
+    for now, text in wraw:
+        msg = orjson.loads(text)
+        if msg["type"] == "estimate":
+            wrecv.setdefault(msg["device"], []).extend((x, now) for x in msg["rows"]["t"])
+    Path(args.out).write_text(
+        json.dumps({"zenoh": zrecv, "websocket": wrecv, "by_holder": by_holder})
+    )
     print("done", flush=True)
 
 
@@ -390,6 +454,7 @@ def run(
         pids = tree(service.pid) + [p.pid for p in remote]
         tree0 = tree_cpu(pids)
         say(f"idle service: {rss0 / 2**20:.0f} MiB; streaming {duration:.0f} s")
+        sub_cpu0 = proc_sample(sub.pid)[0]
         t_start = time.time()
         pub.stdin.write("go\n")
         pub.stdin.flush()
@@ -402,6 +467,7 @@ def run(
             peak = max(peak, rss)
         wall = time.time() - t_start
         cpu1, rss1 = proc_sample(service.pid)
+        sub_cpu = proc_sample(sub.pid)[0] - sub_cpu0
         threads1 = thread_cpu(service.pid)
         tree1 = tree_cpu(pids)
         by_proc = {p: tree1[p] - tree0.get(p, 0.0) for p in tree1 if p in tree0}
@@ -467,6 +533,14 @@ def run(
             "estimates_received_zenoh": z_recv,
             "estimates_received_websocket": w_recv,
             "publisher_late_s": round(pubres["late_s"], 3),
+            # robot samples: sent this long after their time (the publisher's own timing;
+            # not part of the latency, which starts when the sample is sent)
+            "publisher_late_ms": stats_ms(np.array(pubres["late"])),
+            # the load generator: 50 devices that would be on other machines
+            "load_generator_cpu_percent": {
+                "publisher": round(100 * pubres["cpu_s"] / wall, 1),
+                "subscriber": round(100 * sub_cpu / wall, 1),
+            },
             "latency_zenoh_ms": stats_ms(zl),
             "latency_zenoh_all_ms": stats_ms(zl_all),
             "latency_websocket_ms": stats_ms(wl),

@@ -134,8 +134,9 @@ class Publisher:
                 f"{self.prefix}/{device}"
             )
 
-    def declare_key(self, key: str) -> None:
-        self._publisher(key)
+    def declare_key(self, key: str) -> Any:
+        """The key's publisher, declared once (zenoh.Publisher or AdvancedPublisher)."""
+        return self._publisher(key)
 
     def _publisher(self, key: str) -> Any:
         pub = self._pubs.get(key)

@@ -19,6 +19,7 @@ import contextlib
 import json
 import logging
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -51,6 +52,10 @@ log = logging.getLogger(__name__)
 WORKERS_START_S = 60.0
 START_RETRY_S = 5.0  # a session start asks for a holder this long (then: workers' reconcile)
 START_RETRY_PERIOD_S = 0.1
+# The start of a worker's rows message (the hub writes type and device first): enough to
+# drop one that nobody on this node watches without decoding its ~20 columns. A message
+# that does not match is decoded in full.
+ROWS_HEAD = re.compile(rb'\{"type":"(?:estimate|joints)","device":"([^"]+)"')
 
 
 def _die_with_parent() -> None:  # pragma: no cover (runs in the child before exec)
@@ -226,10 +231,21 @@ class Gateway(LiveManager):
 
     # ------------------------------------------------------------------ WebSockets
 
+    def _watched(self, device: str) -> bool:
+        """A socket of this node or its 3D view wants ``device``'s rows."""
+        if self.viz is not None and self.viz.selected == device:
+            return True
+        sid = self.session_of.get(device)
+        return any(c.wants(device, sid) for c in self.hub.clients)
+
     def _on_feed(self, data: bytes) -> None:
         """A worker's dashboard message: to the therapists' sockets as it is; to the
         session's overlays as the one-process hub would send them (their status, their
-        columns of the rows); the rows of the device on screen to the 3D view."""
+        columns of the rows); the rows of the device on screen to the 3D view. Rows nobody
+        here watches are dropped undecoded."""
+        head = ROWS_HEAD.match(data)
+        if head is not None and not self._watched(head[1].decode()):
+            return
         try:
             msg = orjson.loads(data)
             device = msg["device"]
