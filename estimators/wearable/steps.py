@@ -55,15 +55,23 @@ COUNT_NAMES = (
     "time_backwards_upperarm",
     "time_backwards_forearm",
     "time_backwards_camera",
+    "nonfinite_upperarm",
+    "nonfinite_forearm",
+    "nonfinite_camera",
+    "out_of_range_upperarm",
+    "out_of_range_forearm",
+    "out_of_range_camera",
 )
 C_GAP, C_INCONSISTENT, C_NOT_AT_REST, C_MOUNT_U, C_MOUNT_F = range(5)
-C_UNPAIRED, C_FORE_MISSING, C_STALE, C_SUPERSEDED, C_BACKWARDS = range(5, 10)  # + the kind
+C_UNPAIRED, C_FORE_MISSING, C_STALE, C_SUPERSEDED = range(5, 9)
+C_BACKWARDS, C_NONFINITE, C_RANGE = 9, 12, 15  # + the stream (kind)
 # ``tp``: parameters
 (T_MAX_GAP, T_REST_S, T_DRIFT, T_INIT_SIGMA, T_REST_GYRO, T_MOUNT_TOL) = range(6)
 (T_NIS_WINDOW, T_NIS_LIMIT, T_LEFT, T_FOREARM) = range(6, 10)
 T_UP_U, T_UP_F = 10, 13  # (3,) each: "up" in each IMU's frame at the zero pose
 (T_TOL, T_MISSING, T_CAM_AGE, T_CAMERA, T_FIX_REACH, T_SIGMA_POS) = range(16, 22)
-T_SIZE = 22
+T_MAX_GYRO, T_MAX_ACC = 22, 23
+T_SIZE = 24
 # the streams (``kind``) and their sample buffers: rows (t, u (3), v (3)), a queue from
 # ``ptr[2 kind]`` of ``ptr[2 kind + 1]`` rows
 K_UPPER, K_FORE, K_CAMERA = range(3)
@@ -80,7 +88,6 @@ def pair(
     t: Any,
     u: Any,
     v: Any,
-    ok: Any,
     upper: Any,
     fore: Any,
     cam: Any,
@@ -90,8 +97,9 @@ def pair(
     counts: Any,
     final: bool,
 ) -> Any:
-    """Queue one message's samples of stream ``kind`` (``t`` (N,) s, ``u``, ``v`` (N, 3);
-    ``ok`` (N,): passed the value checks) and pair every upper-arm sample whose forearm
+    """Queue one message's samples of stream ``kind`` (``t`` (N,) s, ``u``, ``v`` (N, 3); a
+    sample with a value that is not finite, or beyond any body-worn IMU's range, is counted
+    and dropped) and pair every upper-arm sample whose forearm
     partner is settled, sample by sample as they arrive (so grouping does not matter); with
     ``final`` (end of data), also those still waiting. The buffer of ``kind`` must have room
     for N more rows. Returns the steps: ``t`` (K,), ``z`` (K, 6, 3) in kernel slots, ``avail``,
@@ -110,7 +118,17 @@ def pair(
     buf = upper if kind == K_UPPER else (fore if kind == K_FORE else cam)
     k = 0
     for i in range(t.shape[0]):
-        if not ok[i]:
+        finite = math.isfinite(t[i])
+        big = False
+        for c in range(3):
+            finite = finite and math.isfinite(u[i, c]) and math.isfinite(v[i, c])
+            if kind != K_CAMERA:
+                big = big or abs(u[i, c]) > tp[T_MAX_GYRO] or abs(v[i, c]) > tp[T_MAX_ACC]
+        if not finite:
+            counts[C_NONFINITE + kind] += 1
+            continue
+        if big:
+            counts[C_RANGE + kind] += 1
             continue
         if t[i] <= t_seen[kind]:
             counts[C_BACKWARDS + kind] += 1
@@ -376,15 +394,45 @@ def track(
     x0: Any,
     P0: Any,
 ) -> Any:
-    """EKF steps at upper-arm times ``t`` (N,) s: per step ``z`` (N, 6, 3), ``have`` (N, 6)
-    (the slots measured), ``avail``, ``flags``, ``fix_deg`` (N,) as :func:`finish` takes them.
-    Returns ``x``, ``P`` and the rows ``out`` (19, N)."""
+    """EKF steps at upper-arm times ``t`` (N,) s: per step ``z`` (N, 6, 3), ``avail``,
+    ``flags``, ``fix_deg`` (N,) as :func:`finish` takes them; ``have`` (8, 6): the slots a
+    step measures by its ``avail`` bits (:meth:`.model.Model.measured`). Returns ``x``, ``P``
+    and the rows ``out`` (19, N)."""
     out = np.empty((19, t.shape[0]))
     for i in range(t.shape[0]):
         x, P, ts = begin(x, P, mon, tp, counts, t[i], x0, P0)
-        x, P, nis = kernel.ekf_step_packed(x, P, ts, z[i], have[i], ia, fa)
+        x, P, nis = kernel.ekf_step_packed(x, P, ts, z[i], have[avail[i]], ia, fa)
         finish(
             x, P, mon, nis_buf, tp, counts, t[i], ts, z[i], avail[i], flags[i], fix_deg[i],
             nis, ia, fa, out, i,
         )  # fmt: skip
     return x, P, out
+
+
+@jit
+def feed(
+    kind: int,
+    t: Any,
+    u: Any,
+    v: Any,
+    final: bool,
+    upper: Any,
+    fore: Any,
+    cam: Any,
+    ptr: Any,
+    t_seen: Any,
+    x: Any,
+    P: Any,
+    mon: Any,
+    nis_buf: Any,
+    tp: Any,
+    counts: Any,
+    have: Any,
+    ia: Any,
+    fa: Any,
+    x0: Any,
+    P0: Any,
+) -> Any:
+    """One message through the EKF: :func:`pair`, then :func:`track` (one call from Python)."""
+    pt, z, avail, flags, fix = pair(kind, t, u, v, upper, fore, cam, ptr, t_seen, tp, counts, final)
+    return track(x, P, mon, nis_buf, tp, counts, pt, z, have, avail, flags, fix, ia, fa, x0, P0)

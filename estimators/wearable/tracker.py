@@ -66,6 +66,7 @@ class TrackerState:
 
     model: Model
     tp: F64  # the tracker's parameters for :mod:`.steps`
+    have: NDArray[np.bool_]  # (8, 6) the slots a step measures by what it has (steps.HAVE_*)
     x: F64  # the filter's state and covariance (x0, P0 until the first step)
     P: F64
     x0: F64  # the start's (the zero pose at rest, contract §8 "Start")
@@ -109,9 +110,18 @@ def initial_state(params: WearableParams) -> TrackerState:
     tp[steps.T_CAMERA] = params.camera
     tp[steps.T_FIX_REACH] = params.camera_fix_reach_m
     tp[steps.T_SIGMA_POS] = params.sigma_pos_m
+    tp[steps.T_MAX_GYRO] = params.max_gyro_rads
+    tp[steps.T_MAX_ACC] = params.max_acc_ms2
+    # the slots a step measures, by what was paired with it (steps.HAVE_* bits)
+    bits = np.arange(8)
+    have = model.measured(
+        (bits & steps.HAVE_FOREARM) > 0,
+        (bits & steps.HAVE_ELBOW) > 0,
+        (bits & steps.HAVE_WRIST) > 0,
+    )
     x0, P0 = model.initial()
     mon, nis_buf, counts = steps.new_state(params.nis_window)
-    return TrackerState(model, tp, x0, P0, x0, P0, mon, nis_buf, counts)
+    return TrackerState(model, tp, have, x0, P0, x0, P0, mon, nis_buf, counts)
 
 
 Rows = dict[str, F64]
@@ -131,9 +141,9 @@ def feed(
     """Take one message: ``t`` (N,) s; IMU: ``u`` gyro (N,3) rad/s, ``v`` specific force (N,3)
     m/s² in the IMU frame; camera: ``u`` elbow, ``v`` wrist (N,3) m in S. Returns completed
     rows (columns :data:`COLUMNS`, :data:`STD_COLUMNS`, ``flags``) and the state."""
-    t = np.asarray(t, dtype=np.float64).reshape(-1)
-    u = np.asarray(u, dtype=np.float64).reshape(-1, 3)
-    v = np.asarray(v, dtype=np.float64).reshape(-1, 3)
+    t = np.ascontiguousarray(t, dtype=np.float64).reshape(-1)
+    u = np.ascontiguousarray(u, dtype=np.float64).reshape(-1, 3)
+    v = np.ascontiguousarray(v, dtype=np.float64).reshape(-1, 3)
     if not (len(t) == len(u) == len(v)):
         state.rejected[f"shape_{kind}"] += 1
         t, u, v = t[:0], u[:0], v[:0]
@@ -142,48 +152,13 @@ def feed(
             u, v = mirror_vectors(u), mirror_vectors(v)
         else:
             u, v = mirror_rates(u), mirror_vectors(v)
-    # per-sample checks, vectorised over the message (each sample's verdict is its own)
-    with np.errstate(invalid="ignore"):
-        finite = np.isfinite(t) & np.isfinite(u).all(axis=1) & np.isfinite(v).all(axis=1)
-        in_range = (
-            np.ones(len(t), dtype=np.bool_)
-            if kind == "camera"
-            else (
-                (np.abs(u).max(axis=1, initial=0.0) <= params.max_gyro_rads)
-                & (np.abs(v).max(axis=1, initial=0.0) <= params.max_acc_ms2)
-            )
-        )
-    ok = finite & in_range
-    if not ok.all():
-        bad = {"nonfinite": int((~finite).sum()), "out_of_range": int((finite & ~in_range).sum())}
-        for reason, count in bad.items():  # out of range: beyond any body-worn IMU's range
-            if count:
-                state.rejected[f"{reason}_{kind}"] += count
-    return _steps(params, state, _pair(state, _KIND[kind], t, u, v, ok, final=False)), state
+    return _run(params, state, _KIND[kind], t, u, v, final=False), state
 
 
 def flush(params: WearableParams, state: TrackerState) -> tuple[Rows, TrackerState]:
     """End of data: process the upper-arm samples still waiting for a forearm partner."""
     empty = np.zeros((0, 3))
-    nothing = np.zeros(0, dtype=np.bool_)
-    paired = _pair(state, steps.K_UPPER, np.zeros(0), empty, empty, nothing, final=True)
-    return _steps(params, state, paired), state
-
-
-def _pair(
-    state: TrackerState, kind: int, t: F64, u: F64, v: F64, ok: NDArray[np.bool_], final: bool
-) -> tuple[F64, F64, I64, I64, F64]:
-    """:func:`.steps.pair` on the state's queues, with room made for the message first."""
-    buf, head, size = state.bufs[kind], int(state.ptr[2 * kind]), int(state.ptr[2 * kind + 1])
-    if head + size + len(t) > len(buf):
-        new = buf if size + len(t) <= len(buf) else np.empty((2 * (size + len(t)), 7))
-        new[:size] = buf[head : head + size]
-        state.bufs[kind] = new
-        state.ptr[2 * kind] = 0
-    upper, fore, cam = state.bufs
-    return steps.pair(  # type: ignore[no-any-return]
-        kind, t, u, v, ok, upper, fore, cam, state.ptr, state.t_seen, state.tp, state.counts, final
-    )
+    return _run(params, state, steps.K_UPPER, np.zeros(0), empty, empty, final=True), state
 
 
 def run(
@@ -206,41 +181,41 @@ def concat(parts: list[Rows]) -> Rows:
     return {k: np.concatenate([p[k] for p in parts]) if parts else np.zeros(0) for k in keys}
 
 
-def _steps(
-    params: WearableParams, state: TrackerState, paired: tuple[F64, F64, I64, I64, F64]
+def _run(
+    params: WearableParams, state: TrackerState, kind: int, t: F64, u: F64, v: F64, final: bool
 ) -> Rows:
-    """The filter's steps of the paired samples and their rows (:mod:`.steps`)."""
+    """A message's samples (stream ``kind``) paired (:func:`.steps.pair`) and the filter's
+    steps of the pairs, compiled with the EKF (:func:`.steps.feed`); returns their rows."""
+    buf, head, size = state.bufs[kind], int(state.ptr[2 * kind]), int(state.ptr[2 * kind + 1])
+    if head + size + len(t) > len(buf):  # room for the message in the stream's queue
+        new = buf if size + len(t) <= len(buf) else np.empty((2 * (size + len(t)), 7))
+        new[:size] = buf[head : head + size]
+        state.bufs[kind] = new
+        state.ptr[2 * kind] = 0
+    upper, fore, cam = state.bufs
     model = state.model
-    t, z, avail, flags, fix = paired
-    n = len(t)
-    cols = (*COLUMNS, *STD_COLUMNS, "flags")
-    if not n:
-        _count(state)
-        return {c: np.zeros(0) for c in cols}
-    have = model.measured(
-        (avail & steps.HAVE_FOREARM) > 0,
-        (avail & steps.HAVE_ELBOW) > 0,
-        (avail & steps.HAVE_WRIST) > 0,
-    )
     ia, fa = model.packed
     x0, P0 = state.x0, state.P0
     if params.filter == "ekf":
-        state.x, state.P, out = steps.track(
-            state.x, state.P, state.mon, state.nis_buf, state.tp, state.counts,
-            t, z, have, avail, flags, fix, ia, fa, x0, P0,
+        state.x, state.P, out = steps.feed(
+            kind, t, u, v, final, upper, fore, cam, state.ptr, state.t_seen, state.x, state.P,
+            state.mon, state.nis_buf, state.tp, state.counts, state.have, ia, fa, x0, P0,
         )  # fmt: skip
     else:  # the UKF's update in Python between the same bookkeeping
-        out = np.empty((19, n))
+        t, z, avail, flags, fix = steps.pair(
+            kind, t, u, v, upper, fore, cam, state.ptr, state.t_seen, state.tp, state.counts, final
+        )
+        out = np.empty((19, len(t)))
         x, P = state.x, state.P
-        for k in range(n):
+        for k in range(len(t)):
             x, P, ts = steps.begin(x, P, state.mon, state.tp, state.counts, t[k], x0, P0)
             zk, ak = z[k], int(avail[k])
-            fore = ak & steps.HAVE_FOREARM
+            fore_k = ak & steps.HAVE_FOREARM
             m = Measurement(
                 zk[kernel.GYR_U],
                 zk[kernel.ACC_U],
-                zk[kernel.GYR_F] if fore else None,
-                zk[kernel.ACC_F] if fore else None,
+                zk[kernel.GYR_F] if fore_k else None,
+                zk[kernel.ACC_F] if fore_k else None,
                 zk[kernel.ELBOW] if ak & steps.HAVE_ELBOW else None,
                 zk[kernel.WRIST] if ak & steps.HAVE_WRIST else None,
             )
@@ -251,7 +226,10 @@ def _steps(
             )  # fmt: skip
         state.x, state.P = x, P
     _count(state)
-    return dict(zip(cols, out, strict=True))
+    return dict(zip(_ROW_KEYS, out, strict=True))
+
+
+_ROW_KEYS = (*COLUMNS, *STD_COLUMNS, "flags")
 
 
 def _count(state: TrackerState) -> None:
