@@ -156,21 +156,17 @@ def analyze(
     return report
 
 
-def _cell(v: float, digits: int) -> str:
-    return "" if not math.isfinite(v) else f"{v:.{digits}f}"
-
-
 JOINTS_HEADER = ",".join(tracker.COLUMNS)
 _DIGITS = (6, *([3] * 5), *([4] * 6))
 
 
 def joint_lines(rows: tracker.Rows) -> list[str]:
     """joints.csv's lines (no newline) of some rows: empty cells where not available."""
-    cols = [rows[c].tolist() for c in tracker.COLUMNS]
-    return [
-        ",".join(_cell(v, d) for v, d in zip(row, _DIGITS, strict=True))
-        for row in zip(*cols, strict=True)
+    cells = [  # column by column: one format per column, no call per cell
+        [f"{v:.{d}f}" if math.isfinite(v) else "" for v in rows[c].tolist()]
+        for c, d in zip(tracker.COLUMNS, _DIGITS, strict=True)
     ]
+    return [",".join(row) for row in zip(*cells, strict=True)]
 
 
 def write_joints(rows: tracker.Rows, path: Path) -> None:

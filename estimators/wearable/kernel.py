@@ -527,12 +527,14 @@ def _forward(L: Any, B: Any) -> Any:
     """``L⁻¹ B`` for lower-triangular ``L`` (m, m) and ``B`` (m, k)."""
     m, k = B.shape
     X = B.copy()
-    for i in range(m):
+    for i in range(m):  # row by row, each a contiguous sweep (the same sums per element)
+        for t in range(i):
+            lit = L[i, t]
+            for c in range(k):
+                X[i, c] -= lit * X[t, c]
+        d = L[i, i]
         for c in range(k):
-            acc = X[i, c]
-            for t in range(i):
-                acc -= L[i, t] * X[t, c]
-            X[i, c] = acc / L[i, i]
+            X[i, c] /= d
     return X
 
 
@@ -545,17 +547,18 @@ def gain_update(x: Any, P: Any, Pxz: Any, S: Any, y: Any) -> Any:
     U = _forward(L, np.ascontiguousarray(Pxz.T))
     v = _forward(L, y.reshape((-1, 1)).copy())[:, 0].copy()
     m, n = U.shape
+    Ut = np.ascontiguousarray(U.T)  # the sums below run along rows: contiguous
     xn = x.copy()
     Pn = P.copy()
     for i in range(n):
         acc = 0.0
         for r in range(m):
-            acc += U[r, i] * v[r]
+            acc += Ut[i, r] * v[r]
         xn[i] += acc
         for j in range(i, n):
             acc = 0.0
             for r in range(m):
-                acc += U[r, i] * U[r, j]
+                acc += Ut[i, r] * Ut[j, r]
             val = 0.5 * (P[i, j] + P[j, i]) - acc
             Pn[i, j] = val
             Pn[j, i] = val

@@ -249,21 +249,35 @@ class Model:
         """The readings ``z`` (6, 3) in kernel slot order and which slots this step measures
         (``have`` (6,) bool): the camera rows are left out without a camera sample (σp² = ∞)."""
         z = np.zeros((6, 3))
-        have = np.zeros(6, dtype=np.bool_)
         z[kernel.GYR_U], z[kernel.ACC_U] = m.gyr_u, m.acc_u
-        have[kernel.GYR_U] = self.order >= 1
-        have[kernel.ACC_U] = True
-        if self.use_forearm and m.gyr_f is not None and m.acc_f is not None:
+        fore = m.gyr_f is not None and m.acc_f is not None
+        if fore:
             z[kernel.GYR_F], z[kernel.ACC_F] = m.gyr_f, m.acc_f
-            have[kernel.GYR_F] = self.order >= 1
-            have[kernel.ACC_F] = True
-        if self.params.camera and m.elbow is not None:
+        if m.elbow is not None:
             z[kernel.ELBOW] = m.elbow
-            have[kernel.ELBOW] = True
-            if self.use_forearm and m.wrist is not None:
-                z[kernel.WRIST] = m.wrist
-                have[kernel.WRIST] = True
-        return z, have
+        if m.wrist is not None:
+            z[kernel.WRIST] = m.wrist
+        have = self.measured(
+            np.array([fore]), np.array([m.elbow is not None]), np.array([m.wrist is not None])
+        )
+        return z, have[0]
+
+    def measured(
+        self, fore: NDArray[np.bool_], elbow: NDArray[np.bool_], wrist: NDArray[np.bool_]
+    ) -> NDArray[np.bool_]:
+        """Which slots steps measure (``have`` (N, 6) bool) from what each step has (N,):
+        a forearm sample, a camera elbow and wrist. The camera rows are left out without a
+        camera sample (σp² = ∞); the gyros measure nothing in the order-0 model."""
+        have = np.zeros((len(fore), 6), dtype=np.bool_)
+        have[:, kernel.GYR_U] = self.order >= 1
+        have[:, kernel.ACC_U] = True
+        f = fore & self.use_forearm
+        have[:, kernel.GYR_F] = f & (self.order >= 1)
+        have[:, kernel.ACC_F] = f
+        cam = elbow & self.params.camera
+        have[:, kernel.ELBOW] = cam
+        have[:, kernel.WRIST] = cam & wrist & self.use_forearm
+        return have
 
     def rows(self, m: Measurement) -> tuple[F64, F64]:
         """The measurement vector ``z`` and the diagonal of ``R`` (eq. 19) for what ``m`` holds."""

@@ -19,25 +19,27 @@ Bad input is rejected and counted in ``state.rejected`` by reason; rows carry ``
 from __future__ import annotations
 
 import math
-from collections import Counter, deque
+from collections import Counter
 from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
+from numpy.typing import NDArray
 
-from estimators.wearable import dh, filters, kernel
-from estimators.wearable.dh import F64
+from estimators.wearable import dh, filters, kernel, steps
+from estimators.wearable.dh import F64, I64
 from estimators.wearable.model import DEG, Measurement, Model
 from estimators.wearable.params import WearableParams, mirror_rates, mirror_vectors
 
-FOREARM_MISSING = 1  # no forearm sample paired: elbow angles and wrist empty
-CAMERA_USED = 2
-CAMERA_STALE = 4
-NOT_AT_REST = 8  # the start was not at rest: the zero-pose initialisation is doubtful
-MOUNTING_MISMATCH = 16  # gravity at rest disagrees with the mounting: segment's angles empty
-INCONSISTENT = 32  # innovations far larger than the noise model: the model does not fit
-RESTARTED = 64  # the filter restarted after a gap
-INITIALISING = 128  # inside the start's rest window
+# row flags (bits; the compiled steps set them: :mod:`.steps`)
+FOREARM_MISSING = steps.FOREARM_MISSING  # no forearm sample paired: elbow angles, wrist empty
+CAMERA_USED = steps.CAMERA_USED
+CAMERA_STALE = steps.CAMERA_STALE
+NOT_AT_REST = steps.NOT_AT_REST  # the start was not at rest: the zero-pose start is doubtful
+MOUNTING_MISMATCH = steps.MOUNTING_MISMATCH  # gravity at rest disagrees with the mounting
+INCONSISTENT = steps.INCONSISTENT  # innovations far larger than the noise model
+RESTARTED = steps.RESTARTED  # the filter restarted after a gap
+INITIALISING = steps.INITIALISING  # inside the start's rest window
 
 COLUMNS = (
     "t",
@@ -63,40 +65,69 @@ class TrackerState:
     """Everything carried between calls (like scipy.signal's ``zi``)."""
 
     model: Model
-    x: F64 | None = None
-    P: F64 | None = None
-    t_last: float = -math.inf  # last processed upper-arm sample
-    t_seen: dict[str, float] = field(
-        default_factory=lambda: {"upperarm": -math.inf, "forearm": -math.inf, "camera": -math.inf}
-    )
-    upper: deque[tuple[float, F64, F64]] = field(default_factory=deque)
-    fore: deque[tuple[float, F64, F64]] = field(default_factory=deque)
-    cam: deque[tuple[float, F64, F64]] = field(default_factory=deque)
-    t_start: float = math.nan  # start of the current run (rest window)
-    rest_acc_u: F64 = field(default_factory=lambda: np.zeros(3))
-    rest_acc_f: F64 = field(default_factory=lambda: np.zeros(3))
-    rest_n: int = 0
-    rest_nf: int = 0
-    rest_gyro_max: float = 0.0
-    rest_checked: bool = False
-    sticky: int = 0  # flags holding for the rest of the run
-    nis: deque[float] = field(default_factory=deque)
-    nis_sum: float = 0.0
-    restarted: bool = False
-    vertical_deg: float = 0.0  # drift bound of the turn about the vertical (params)
+    tp: F64  # the tracker's parameters for :mod:`.steps`
+    have: NDArray[np.bool_]  # (8, 6) the slots a step measures by what it has (steps.HAVE_*)
+    x: F64  # the filter's state and covariance (x0, P0 until the first step)
+    P: F64
+    x0: F64  # the start's (the zero pose at rest, contract §8 "Start")
+    P0: F64
+    mon: F64  # the run's bookkeeping (:mod:`.steps`' layout)
+    nis_buf: F64
+    counts: I64
+    # the newest sample time seen per stream, and the samples waiting for their partners
+    # (:func:`.steps.pair`'s queues)
+    t_seen: F64 = field(default_factory=lambda: np.full(3, -math.inf))
+    bufs: list[F64] = field(default_factory=lambda: [np.empty((64, 7)) for _ in range(3)])
+    ptr: I64 = field(default_factory=lambda: np.zeros(6, dtype=np.intp))
     rejected: Counter[str] = field(default_factory=Counter)
-    steps: int = 0
+
+    @property
+    def steps(self) -> int:
+        return int(self.mon[steps.M_STEPS])
 
 
 def initial_state(params: WearableParams) -> TrackerState:
-    return TrackerState(Model.build(params))
+    model = Model.build(params)
+    geo = model.geo
+    zero = dh.pose(np.zeros(5), geo.upper_arm_m, geo.forearm_m)
+    tp = np.zeros(steps.T_SIZE)
+    tp[steps.T_MAX_GAP] = params.max_gap_s
+    tp[steps.T_REST_S] = params.rest_s
+    tp[steps.T_DRIFT] = params.vertical_drift_dps
+    tp[steps.T_INIT_SIGMA] = params.init_sigma_deg
+    tp[steps.T_REST_GYRO] = params.rest_gyro_dps * DEG
+    tp[steps.T_MOUNT_TOL] = params.mounting_tolerance_deg
+    tp[steps.T_NIS_WINDOW] = params.nis_window
+    tp[steps.T_NIS_LIMIT] = params.nis_limit
+    tp[steps.T_LEFT] = params.side == "left"
+    tp[steps.T_FOREARM] = model.use_forearm
+    # "up" in each IMU's frame at the zero pose (what gravity reads at the start's rest)
+    tp[steps.T_UP_U : steps.T_UP_U + 3] = (zero.R_SU @ geo.R_UI)[2]
+    tp[steps.T_UP_F : steps.T_UP_F + 3] = (zero.R_SF @ geo.R_FI)[2]
+    tp[steps.T_TOL] = params.forearm_tolerance_s
+    tp[steps.T_MISSING] = params.forearm_missing_s
+    tp[steps.T_CAM_AGE] = params.camera_max_age_s
+    tp[steps.T_CAMERA] = params.camera
+    tp[steps.T_FIX_REACH] = params.camera_fix_reach_m
+    tp[steps.T_SIGMA_POS] = params.sigma_pos_m
+    tp[steps.T_MAX_GYRO] = params.max_gyro_rads
+    tp[steps.T_MAX_ACC] = params.max_acc_ms2
+    # the slots a step measures, by what was paired with it (steps.HAVE_* bits)
+    bits = np.arange(8)
+    have = model.measured(
+        (bits & steps.HAVE_FOREARM) > 0,
+        (bits & steps.HAVE_ELBOW) > 0,
+        (bits & steps.HAVE_WRIST) > 0,
+    )
+    x0, P0 = model.initial()
+    mon, nis_buf, counts = steps.new_state(params.nis_window)
+    return TrackerState(model, tp, have, x0, P0, x0, P0, mon, nis_buf, counts)
 
 
 Rows = dict[str, F64]
 
 
-def _empty_rows() -> dict[str, list[float]]:
-    return {c: [] for c in (*COLUMNS, *STD_COLUMNS, "flags")}
+_KIND = {"upperarm": steps.K_UPPER, "forearm": steps.K_FORE, "camera": steps.K_CAMERA}
 
 
 def feed(
@@ -110,53 +141,24 @@ def feed(
     """Take one message: ``t`` (N,) s; IMU: ``u`` gyro (N,3) rad/s, ``v`` specific force (N,3)
     m/s² in the IMU frame; camera: ``u`` elbow, ``v`` wrist (N,3) m in S. Returns completed
     rows (columns :data:`COLUMNS`, :data:`STD_COLUMNS`, ``flags``) and the state."""
-    out = _empty_rows()
-    t = np.asarray(t, dtype=np.float64).reshape(-1)
-    u = np.asarray(u, dtype=np.float64).reshape(-1, 3)
-    v = np.asarray(v, dtype=np.float64).reshape(-1, 3)
+    t = np.ascontiguousarray(t, dtype=np.float64).reshape(-1)
+    u = np.ascontiguousarray(u, dtype=np.float64).reshape(-1, 3)
+    v = np.ascontiguousarray(v, dtype=np.float64).reshape(-1, 3)
     if not (len(t) == len(u) == len(v)):
         state.rejected[f"shape_{kind}"] += 1
-        return _as_arrays(out), state
+        t, u, v = t[:0], u[:0], v[:0]
     if params.side == "left":  # onto the virtual right arm (params.MIRROR)
         if kind == "camera":
             u, v = mirror_vectors(u), mirror_vectors(v)
         else:
             u, v = mirror_rates(u), mirror_vectors(v)
-    buf = {"upperarm": state.upper, "forearm": state.fore, "camera": state.cam}[kind]
-    # per-sample checks, vectorised over the message (each sample's verdict is its own)
-    with np.errstate(invalid="ignore"):
-        finite = (np.isfinite(t) & np.isfinite(u).all(axis=1) & np.isfinite(v).all(axis=1)).tolist()
-        in_range = (
-            [True] * len(t)
-            if kind == "camera"
-            else (
-                (np.abs(u).max(axis=1, initial=0.0) <= params.max_gyro_rads)
-                & (np.abs(v).max(axis=1, initial=0.0) <= params.max_acc_ms2)
-            ).tolist()
-        )
-    ts_list = t.tolist()
-    for i in range(len(t)):
-        ti = ts_list[i]
-        if not finite[i]:
-            state.rejected[f"nonfinite_{kind}"] += 1
-            continue
-        if not in_range[i]:
-            state.rejected[f"out_of_range_{kind}"] += 1  # beyond any body-worn IMU's range
-            continue
-        if ti <= state.t_seen[kind]:
-            state.rejected[f"time_backwards_{kind}"] += 1
-            continue
-        state.t_seen[kind] = ti
-        buf.append((ti, u[i].copy(), v[i].copy()))
-        _drain(params, state, out, final=False)
-    return _as_arrays(out), state
+    return _run(params, state, _KIND[kind], t, u, v, final=False), state
 
 
 def flush(params: WearableParams, state: TrackerState) -> tuple[Rows, TrackerState]:
     """End of data: process the upper-arm samples still waiting for a forearm partner."""
-    out = _empty_rows()
-    _drain(params, state, out, final=True)
-    return _as_arrays(out), state
+    empty = np.zeros((0, 3))
+    return _run(params, state, steps.K_UPPER, np.zeros(0), empty, empty, final=True), state
 
 
 def run(
@@ -179,194 +181,61 @@ def concat(parts: list[Rows]) -> Rows:
     return {k: np.concatenate([p[k] for p in parts]) if parts else np.zeros(0) for k in keys}
 
 
-def _as_arrays(out: dict[str, list[float]]) -> Rows:
-    return {k: np.asarray(v, dtype=np.float64) for k, v in out.items()}
-
-
-def _drain(
-    params: WearableParams, state: TrackerState, out: dict[str, list[float]], final: bool
-) -> None:
-    """Process every upper-arm sample whose forearm partner is settled."""
+def _run(
+    params: WearableParams, state: TrackerState, kind: int, t: F64, u: F64, v: F64, final: bool
+) -> Rows:
+    """A message's samples (stream ``kind``) paired (:func:`.steps.pair`) and the filter's
+    steps of the pairs, compiled with the EKF (:func:`.steps.feed`); returns their rows."""
+    buf, head, size = state.bufs[kind], int(state.ptr[2 * kind]), int(state.ptr[2 * kind + 1])
+    if head + size + len(t) > len(buf):  # room for the message in the stream's queue
+        new = buf if size + len(t) <= len(buf) else np.empty((2 * (size + len(t)), 7))
+        new[:size] = buf[head : head + size]
+        state.bufs[kind] = new
+        state.ptr[2 * kind] = 0
+    upper, fore, cam = state.bufs
     model = state.model
-    while state.upper:
-        tu = state.upper[0][0]
-        fore: tuple[float, F64, F64] | None = None
-        if model.use_forearm:
-            tol = params.forearm_tolerance_s
-            while state.fore and state.fore[0][0] < tu - tol:
-                state.fore.popleft()
-                state.rejected["forearm_unpaired"] += 1
-            if state.fore and state.fore[0][0] <= tu + tol:
-                fore = state.fore.popleft()
-            elif not state.fore and not final:
-                # nothing from the forearm at or after tu yet: wait, unless it is missing
-                waited = state.t_seen["upperarm"] - max(tu, state.t_seen["forearm"])
-                if state.t_seen["forearm"] < tu - tol and waited < params.forearm_missing_s:
-                    return
-        _, gu, au = state.upper.popleft()
-        _step(params, state, tu, gu, au, fore, out)
-
-
-def _restart(params: WearableParams, state: TrackerState, t: float) -> None:
-    state.x, state.P = state.model.initial()
-    state.t_start = t
-    state.rest_acc_u = np.zeros(3)
-    state.rest_acc_f = np.zeros(3)
-    state.rest_n = state.rest_nf = 0
-    state.rest_gyro_max = 0.0
-    state.rest_checked = False
-    state.sticky = 0
-    state.nis.clear()
-    state.nis_sum = 0.0
-    state.vertical_deg = params.init_sigma_deg
-
-
-def _camera(
-    params: WearableParams, state: TrackerState, t: float
-) -> tuple[F64 | None, F64 | None, int]:
-    """The newest camera sample at or before ``t`` (used once), and flags."""
-    best: tuple[float, F64, F64] | None = None
-    stale = 0
-    while state.cam and state.cam[0][0] <= t:
-        c = state.cam.popleft()
-        if t - c[0] > params.camera_max_age_s:
-            state.rejected["camera_stale"] += 1
-            stale = CAMERA_STALE
-            continue
-        if best is not None:
-            state.rejected["camera_superseded"] += 1
-        best = c
-    if best is None or not params.camera:
-        return None, None, stale
-    return best[1], best[2], CAMERA_USED
-
-
-def _step(
-    params: WearableParams,
-    state: TrackerState,
-    t: float,
-    gyr_u: F64,
-    acc_u: F64,
-    fore: tuple[float, F64, F64] | None,
-    out: dict[str, list[float]],
-) -> None:
-    model = state.model
-    flags = 0
-    if state.x is None or t - state.t_last > params.max_gap_s:
-        if state.x is not None:
-            state.rejected["gap_restart"] += 1
-            state.restarted = True
-        _restart(params, state, t)
-        ts = 0.0
-    else:
-        ts = t - state.t_last
-    if state.restarted:
-        flags |= RESTARTED
-    state.t_last = t
-    elbow_c, wrist_c, cflags = _camera(params, state, t)
-    flags |= cflags
-    gyr_f = acc_f = None
-    if fore is not None:
-        gyr_f, acc_f = fore[1], fore[2]
-    elif model.use_forearm:
-        flags |= FOREARM_MISSING
-        state.rejected["forearm_missing"] += 1
-    assert state.x is not None and state.P is not None
-    x, P = state.x, state.P
-    m = Measurement(gyr_u, acc_u, gyr_f, acc_f, elbow_c, wrist_c)
-    x, P, nis = filters.step(params.filter, model, x, P, ts, m)
-    state.x, state.P = x, P
-    state.steps += 1
-    state.vertical_deg += params.vertical_drift_dps * ts
-    if elbow_c is not None:
-        reach = max(
-            float(np.hypot(*elbow_c[:2])),
-            float(np.hypot(*wrist_c[:2])) if wrist_c is not None else 0.0,
+    ia, fa = model.packed
+    x0, P0 = state.x0, state.P0
+    if params.filter == "ekf":
+        state.x, state.P, out = steps.feed(
+            kind, t, u, v, final, upper, fore, cam, state.ptr, state.t_seen, state.x, state.P,
+            state.mon, state.nis_buf, state.tp, state.counts, state.have, ia, fa, x0, P0,
+        )  # fmt: skip
+    else:  # the UKF's update in Python between the same bookkeeping
+        t, z, avail, flags, fix = steps.pair(
+            kind, t, u, v, upper, fore, cam, state.ptr, state.t_seen, state.tp, state.counts, final
         )
-        if reach >= params.camera_fix_reach_m:
-            fix = math.degrees(params.sigma_pos_m / reach)
-            state.vertical_deg = min(state.vertical_deg, fix)
-    _monitor(params, state, t, m, nis)
-    flags |= state.sticky
-    if t - state.t_start < params.rest_s:
-        flags |= INITIALISING
-    _emit(params, state, t, flags, out)
+        out = np.empty((19, len(t)))
+        x, P = state.x, state.P
+        for k in range(len(t)):
+            x, P, ts = steps.begin(x, P, state.mon, state.tp, state.counts, t[k], x0, P0)
+            zk, ak = z[k], int(avail[k])
+            fore_k = ak & steps.HAVE_FOREARM
+            m = Measurement(
+                zk[kernel.GYR_U],
+                zk[kernel.ACC_U],
+                zk[kernel.GYR_F] if fore_k else None,
+                zk[kernel.ACC_F] if fore_k else None,
+                zk[kernel.ELBOW] if ak & steps.HAVE_ELBOW else None,
+                zk[kernel.WRIST] if ak & steps.HAVE_WRIST else None,
+            )
+            x, P, nis = filters.step(params.filter, model, x, P, ts, m)
+            steps.finish(
+                x, P, state.mon, state.nis_buf, state.tp, state.counts, t[k], ts, zk,
+                ak, int(flags[k]), float(fix[k]), nis, ia, fa, out, k,
+            )  # fmt: skip
+        state.x, state.P = x, P
+    _count(state)
+    return dict(zip(_ROW_KEYS, out, strict=True))
 
 
-def _monitor(
-    params: WearableParams, state: TrackerState, t: float, m: Measurement, nis: float
-) -> None:
-    """The start's rest and mounting check (contract §8 "Start") and the innovation monitor."""
-    if not state.rest_checked:
-        if t - state.t_start < params.rest_s:
-            state.rest_acc_u += m.acc_u
-            state.rest_n += 1
-            g = float(np.linalg.norm(m.gyr_u))
-            if m.acc_f is not None and m.gyr_f is not None:
-                state.rest_acc_f += m.acc_f
-                state.rest_nf += 1
-                g = max(g, float(np.linalg.norm(m.gyr_f)))
-            state.rest_gyro_max = max(state.rest_gyro_max, g)
-        else:
-            _check_rest(params, state)
-    state.nis.append(nis)
-    state.nis_sum += nis
-    if len(state.nis) > params.nis_window:
-        state.nis_sum -= state.nis.popleft()
-    if len(state.nis) == params.nis_window and state.nis_sum / params.nis_window > params.nis_limit:
-        if not state.sticky & INCONSISTENT:
-            state.rejected["inconsistent_model"] += 1
-        state.sticky |= INCONSISTENT
-    else:
-        state.sticky &= ~INCONSISTENT
+_ROW_KEYS = (*COLUMNS, *STD_COLUMNS, "flags")
 
 
-def _check_rest(params: WearableParams, state: TrackerState) -> None:
-    state.rest_checked = True
-    if state.rest_gyro_max > params.rest_gyro_dps * DEG:
-        state.rejected["start_not_at_rest"] += 1
-        state.sticky |= NOT_AT_REST
-        return  # the accelerometers moved too: no mounting verdict from them
-    geo = state.model.geo
-    zero = dh.pose(np.zeros(5), geo.upper_arm_m, geo.forearm_m)
-    up = np.array([0.0, 0.0, 1.0])
-    checks = [(state.rest_acc_u, state.rest_n, zero.R_SU @ geo.R_UI, "upperarm")]
-    if state.rest_nf:
-        checks.append((state.rest_acc_f, state.rest_nf, zero.R_SF @ geo.R_FI, "forearm"))
-    for acc, n, r_si, name in checks:
-        mean = acc / max(n, 1)
-        expect = up @ r_si
-        cos = float(mean @ expect) / max(float(np.linalg.norm(mean)), 1e-9)
-        if math.degrees(math.acos(max(-1.0, min(1.0, cos)))) > params.mounting_tolerance_deg:
-            state.rejected[f"mounting_mismatch_{name}"] += 1
-            state.sticky |= MOUNTING_MISMATCH
-
-
-def _emit(
-    params: WearableParams, state: TrackerState, t: float, flags: int, out: dict[str, list[float]]
-) -> None:
-    model = state.model
-    assert state.x is not None and state.P is not None
-    o = kernel.emit(state.x, state.P, *model.packed, math.radians(state.vertical_deg))
-    # the whole arm's turn about the vertical (unobservable without a camera, carried by the
-    # gyros alone, contract §8 "Start"): the EKF's σ of it and the drift bound
-    vert = math.hypot(float(o[16]), state.vertical_deg)
-    elbow, wrist = o[10:13], o[13:16]
-    if params.side == "left":
-        elbow, wrist = mirror_vectors(elbow), mirror_vectors(wrist)
-    deg = o[0:5]
-    sdeg = o[5:10]
-    if not model.use_forearm or flags & FOREARM_MISSING:
-        deg[3:] = np.nan
-        sdeg[3:] = np.nan
-        wrist = _NAN3
-    if flags & MOUNTING_MISMATCH:
-        deg[:] = np.nan
-        sdeg[:] = np.nan
-        elbow = wrist = _NAN3
-    vals = (t, *deg.tolist(), *elbow.tolist(), *wrist.tolist())
-    for c, val in zip(COLUMNS, vals, strict=True):
-        out[c].append(val)
-    for c, val in zip(STD_COLUMNS, (*sdeg.tolist(), vert), strict=True):
-        out[c].append(val)
-    out["flags"].append(float(flags))
+def _count(state: TrackerState) -> None:
+    """Move the compiled steps' rejection counts into ``state.rejected``."""
+    if state.counts.any():
+        for name, c in zip(steps.COUNT_NAMES, state.counts.tolist(), strict=True):
+            if c:
+                state.rejected[name] += c
+        state.counts[:] = 0

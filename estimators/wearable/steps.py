@@ -1,0 +1,438 @@
+"""The tracker's per-sample bookkeeping, compiled (numba), and the batch driver.
+
+:mod:`.tracker` pairs the streams in Python and hands each message's steps here as arrays:
+:func:`begin` (the restart after a gap), the filter's step, :func:`finish` (the drift bound
+about the vertical, the start's rest and mounting check of contract §8 "Start", the innovation
+monitor and the row's numbers). :func:`track` loops the three over a message's steps inside
+numba with the EKF (:func:`.kernel.ekf_step_packed`, the same step a single call runs); the UKF
+calls :func:`begin` and :func:`finish` around its Python update. A step's numbers do not
+depend on how the steps were grouped into calls.
+
+The state between calls is three arrays: ``mon`` (layout ``M_*``), the innovation window
+``nis_buf`` (a ring of ``nis_window`` values) and ``counts`` (rejections by reason, ``C_*``;
+the caller moves them into its counter). ``tp`` holds the tracker's parameters (``T_*``).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from estimators.wearable import kernel
+from estimators.wearable.kernel import jit
+
+# row flags (the tracker's public names re-export these)
+FOREARM_MISSING = 1  # no forearm sample paired: elbow angles and wrist empty
+CAMERA_USED = 2
+CAMERA_STALE = 4
+NOT_AT_REST = 8  # the start was not at rest: the zero-pose initialisation is doubtful
+MOUNTING_MISMATCH = 16  # gravity at rest disagrees with the mounting: segment's angles empty
+INCONSISTENT = 32  # innovations far larger than the noise model: the model does not fit
+RESTARTED = 64  # the filter restarted after a gap
+INITIALISING = 128  # inside the start's rest window
+
+# per step, what was paired with the upper-arm sample (bits of ``avail``)
+HAVE_FOREARM, HAVE_ELBOW, HAVE_WRIST = 1, 2, 4
+
+# ``mon``: the run's state
+(M_HAVE_X, M_T_LAST, M_T_START, M_VERT, M_REST_N, M_REST_NF, M_GYRO_MAX, M_CHECKED) = range(8)
+(M_STICKY, M_NIS_SUM, M_NIS_LEN, M_NIS_POS, M_RESTARTED, M_STEPS) = range(8, 14)
+M_ACC_U, M_ACC_F = 14, 17  # (3,) each: sums of the specific force over the rest window
+M_SIZE = 20
+# ``counts``: rejections by reason
+COUNT_NAMES = (
+    "gap_restart",
+    "inconsistent_model",
+    "start_not_at_rest",
+    "mounting_mismatch_upperarm",
+    "mounting_mismatch_forearm",
+    "forearm_unpaired",
+    "forearm_missing",
+    "camera_stale",
+    "camera_superseded",
+    "time_backwards_upperarm",
+    "time_backwards_forearm",
+    "time_backwards_camera",
+    "nonfinite_upperarm",
+    "nonfinite_forearm",
+    "nonfinite_camera",
+    "out_of_range_upperarm",
+    "out_of_range_forearm",
+    "out_of_range_camera",
+)
+C_GAP, C_INCONSISTENT, C_NOT_AT_REST, C_MOUNT_U, C_MOUNT_F = range(5)
+C_UNPAIRED, C_FORE_MISSING, C_STALE, C_SUPERSEDED = range(5, 9)
+C_BACKWARDS, C_NONFINITE, C_RANGE = 9, 12, 15  # + the stream (kind)
+# ``tp``: parameters
+(T_MAX_GAP, T_REST_S, T_DRIFT, T_INIT_SIGMA, T_REST_GYRO, T_MOUNT_TOL) = range(6)
+(T_NIS_WINDOW, T_NIS_LIMIT, T_LEFT, T_FOREARM) = range(6, 10)
+T_UP_U, T_UP_F = 10, 13  # (3,) each: "up" in each IMU's frame at the zero pose
+(T_TOL, T_MISSING, T_CAM_AGE, T_CAMERA, T_FIX_REACH, T_SIGMA_POS) = range(16, 22)
+T_MAX_GYRO, T_MAX_ACC = 22, 23
+T_SIZE = 24
+# the streams (``kind``) and their sample buffers: rows (t, u (3), v (3)), a queue from
+# ``ptr[2 kind]`` of ``ptr[2 kind + 1]`` rows
+K_UPPER, K_FORE, K_CAMERA = range(3)
+
+
+def new_state(nis_window: int) -> tuple[Any, Any, Any]:
+    """``mon``, ``nis_buf``, ``counts`` of a tracker that has seen nothing."""
+    return np.zeros(M_SIZE), np.zeros(max(nis_window, 1)), np.zeros(len(COUNT_NAMES), np.intp)
+
+
+@jit
+def pair(
+    kind: int,
+    t: Any,
+    u: Any,
+    v: Any,
+    upper: Any,
+    fore: Any,
+    cam: Any,
+    ptr: Any,
+    t_seen: Any,
+    tp: Any,
+    counts: Any,
+    final: bool,
+) -> Any:
+    """Queue one message's samples of stream ``kind`` (``t`` (N,) s, ``u``, ``v`` (N, 3); a
+    sample with a value that is not finite, or beyond any body-worn IMU's range, is counted
+    and dropped) and pair every upper-arm sample whose forearm
+    partner is settled, sample by sample as they arrive (so grouping does not matter); with
+    ``final`` (end of data), also those still waiting. The buffer of ``kind`` must have room
+    for N more rows. Returns the steps: ``t`` (K,), ``z`` (K, 6, 3) in kernel slots, ``avail``,
+    ``flags``, ``fix_deg`` (K,) as :func:`finish` takes them.
+
+    Pairing: a forearm sample within ``forearm_tolerance_s`` of an upper-arm sample is used
+    with it; an upper-arm sample waits (in sample time) for its partner at most
+    ``forearm_missing_s``, then steps on without it. The newest camera sample at or before an
+    upper-arm sample is used with it once; one older than ``camera_max_age_s`` is stale."""
+    m = ptr[1] + (t.shape[0] if kind == K_UPPER else 0)
+    out_t = np.empty(m)
+    z = np.zeros((m, 6, 3))
+    avail = np.zeros(m, dtype=np.intp)
+    flags = np.zeros(m, dtype=np.intp)
+    fix = np.full(m, math.inf)
+    buf = upper if kind == K_UPPER else (fore if kind == K_FORE else cam)
+    k = 0
+    for i in range(t.shape[0]):
+        finite = math.isfinite(t[i])
+        big = False
+        for c in range(3):
+            finite = finite and math.isfinite(u[i, c]) and math.isfinite(v[i, c])
+            if kind != K_CAMERA:
+                big = big or abs(u[i, c]) > tp[T_MAX_GYRO] or abs(v[i, c]) > tp[T_MAX_ACC]
+        if not finite:
+            counts[C_NONFINITE + kind] += 1
+            continue
+        if big:
+            counts[C_RANGE + kind] += 1
+            continue
+        if t[i] <= t_seen[kind]:
+            counts[C_BACKWARDS + kind] += 1
+            continue
+        t_seen[kind] = t[i]
+        r = ptr[2 * kind] + ptr[2 * kind + 1]
+        buf[r, 0] = t[i]
+        for c in range(3):
+            buf[r, 1 + c] = u[i, c]
+            buf[r, 4 + c] = v[i, c]
+        ptr[2 * kind + 1] += 1
+        k = _drain(upper, fore, cam, ptr, t_seen, tp, counts, False, out_t, z, avail, flags, fix, k)
+    if final:
+        k = _drain(upper, fore, cam, ptr, t_seen, tp, counts, True, out_t, z, avail, flags, fix, k)
+    for q in range(3):  # an empty queue starts again at the buffer's top
+        if ptr[2 * q + 1] == 0:
+            ptr[2 * q] = 0
+    return out_t[:k], z[:k], avail[:k], flags[:k], fix[:k]
+
+
+@jit
+def _drain(
+    upper: Any,
+    fore: Any,
+    cam: Any,
+    ptr: Any,
+    t_seen: Any,
+    tp: Any,
+    counts: Any,
+    final: bool,
+    out_t: Any,
+    z: Any,
+    avail: Any,
+    flags: Any,
+    fix: Any,
+    k: int,
+) -> int:
+    """:func:`pair`'s pairing of the queued upper-arm samples into steps ``k``, ``k`` + 1, …;
+    returns the next ``k``."""
+    use_fore = tp[T_FOREARM] != 0.0
+    tol = tp[T_TOL]
+    while ptr[1] > 0:
+        hu = ptr[0]
+        tu = upper[hu, 0]
+        fi = -1
+        if use_fore:
+            while ptr[3] > 0 and fore[ptr[2], 0] < tu - tol:
+                ptr[2] += 1
+                ptr[3] -= 1
+                counts[C_UNPAIRED] += 1
+            if ptr[3] > 0 and fore[ptr[2], 0] <= tu + tol:
+                fi = ptr[2]
+                ptr[2] += 1
+                ptr[3] -= 1
+            elif ptr[3] == 0 and not final:
+                # nothing from the forearm at or after tu yet: wait, unless it is missing
+                waited = t_seen[K_UPPER] - max(tu, t_seen[K_FORE])
+                if t_seen[K_FORE] < tu - tol and waited < tp[T_MISSING]:
+                    return k
+        ptr[0] += 1
+        ptr[1] -= 1
+        best = -1
+        fl = 0
+        while ptr[5] > 0 and cam[ptr[4], 0] <= tu:
+            c = ptr[4]
+            ptr[4] += 1
+            ptr[5] -= 1
+            if tu - cam[c, 0] > tp[T_CAM_AGE]:
+                counts[C_STALE] += 1
+                fl = CAMERA_STALE
+                continue
+            if best >= 0:
+                counts[C_SUPERSEDED] += 1
+            best = c
+        for c in range(3):
+            z[k, kernel.GYR_U, c] = upper[hu, 1 + c]
+            z[k, kernel.ACC_U, c] = upper[hu, 4 + c]
+        if best >= 0 and tp[T_CAMERA] != 0.0:
+            fl = CAMERA_USED
+            avail[k] |= HAVE_ELBOW | HAVE_WRIST
+            for c in range(3):
+                z[k, kernel.ELBOW, c] = cam[best, 1 + c]
+                z[k, kernel.WRIST, c] = cam[best, 4 + c]
+            # the camera's bound on the turn about the vertical: its position noise over the
+            # arm's horizontal reach (none when the arm hangs too close to the vertical)
+            reach = max(
+                math.hypot(cam[best, 1], cam[best, 2]), math.hypot(cam[best, 4], cam[best, 5])
+            )
+            if reach >= tp[T_FIX_REACH]:
+                fix[k] = math.degrees(tp[T_SIGMA_POS] / reach)
+        if fi >= 0:
+            avail[k] |= HAVE_FOREARM
+            for c in range(3):
+                z[k, kernel.GYR_F, c] = fore[fi, 1 + c]
+                z[k, kernel.ACC_F, c] = fore[fi, 4 + c]
+        elif use_fore:
+            fl |= FOREARM_MISSING
+            counts[C_FORE_MISSING] += 1
+        out_t[k] = tu
+        flags[k] = fl
+        k += 1
+    return k
+
+
+@jit
+def begin(x: Any, P: Any, mon: Any, tp: Any, counts: Any, t: float, x0: Any, P0: Any) -> Any:
+    """Start a step at upper-arm time ``t`` s: (re)start at ``x0``, ``P0`` on the first sample
+    or after a gap longer than the parameter's; returns ``x``, ``P`` and the step ``ts`` s."""
+    if mon[M_HAVE_X] == 0.0 or t - mon[M_T_LAST] > tp[T_MAX_GAP]:
+        if mon[M_HAVE_X] != 0.0:
+            counts[C_GAP] += 1
+            mon[M_RESTARTED] = 1.0
+        x = x0.copy()
+        P = P0.copy()
+        mon[M_HAVE_X] = 1.0
+        mon[M_T_START] = t
+        for k in range(6):
+            mon[M_ACC_U + k] = 0.0
+        mon[M_REST_N] = mon[M_REST_NF] = mon[M_GYRO_MAX] = mon[M_CHECKED] = 0.0
+        mon[M_STICKY] = mon[M_NIS_SUM] = mon[M_NIS_LEN] = mon[M_NIS_POS] = 0.0
+        mon[M_VERT] = tp[T_INIT_SIGMA]
+        ts = 0.0
+    else:
+        ts = t - mon[M_T_LAST]
+    mon[M_T_LAST] = t
+    return x, P, ts
+
+
+@jit
+def _check_rest(mon: Any, tp: Any, counts: Any) -> None:
+    """The end of the start's rest window: did the gyros stay still, and does the mean specific
+    force point up as the mounting at the zero pose says (within the tolerance)?"""
+    mon[M_CHECKED] = 1.0
+    sticky = int(mon[M_STICKY])
+    if mon[M_GYRO_MAX] > tp[T_REST_GYRO]:
+        counts[C_NOT_AT_REST] += 1
+        mon[M_STICKY] = sticky | NOT_AT_REST
+        return  # the accelerometers moved too: no mounting verdict from them
+    for seg in range(2):
+        n = mon[M_REST_N] if seg == 0 else mon[M_REST_NF]
+        if seg == 1 and n == 0.0:
+            continue
+        acc, up = (M_ACC_U, T_UP_U) if seg == 0 else (M_ACC_F, T_UP_F)
+        dot = 0.0
+        norm2 = 0.0
+        for c in range(3):
+            mean = mon[acc + c] / max(n, 1.0)
+            dot += mean * tp[up + c]
+            norm2 += mean * mean
+        cos = dot / max(math.sqrt(norm2), 1e-9)
+        if math.degrees(math.acos(max(-1.0, min(1.0, cos)))) > tp[T_MOUNT_TOL]:
+            counts[C_MOUNT_U if seg == 0 else C_MOUNT_F] += 1
+            sticky |= MOUNTING_MISMATCH
+    mon[M_STICKY] = sticky
+
+
+@jit
+def finish(
+    x: Any,
+    P: Any,
+    mon: Any,
+    nis_buf: Any,
+    tp: Any,
+    counts: Any,
+    t: float,
+    ts: float,
+    z: Any,
+    avail: int,
+    flags: int,
+    fix_deg: float,
+    nis: float,
+    ia: Any,
+    fa: Any,
+    out: Any,
+    i: int,
+) -> None:
+    """After the filter's step at ``t`` (over ``ts`` s, with readings ``z`` (6, 3) in kernel
+    slots, ``avail`` bits, the pairing's ``flags`` and the camera's bound ``fix_deg`` on the turn
+    about the vertical, +inf without one): the monitors, then row ``i`` of ``out`` (19, N):
+    tracker.COLUMNS, tracker.STD_COLUMNS, flags (angles in degrees, NaN where not available)."""
+    mon[M_STEPS] += 1.0
+    mon[M_VERT] = min(mon[M_VERT] + tp[T_DRIFT] * ts, fix_deg)
+    if mon[M_CHECKED] == 0.0:
+        if t - mon[M_T_START] < tp[T_REST_S]:
+            g = 0.0
+            for c in range(3):
+                mon[M_ACC_U + c] += z[kernel.ACC_U, c]
+                g += z[kernel.GYR_U, c] * z[kernel.GYR_U, c]
+            mon[M_REST_N] += 1.0
+            g = math.sqrt(g)
+            if avail & HAVE_FOREARM:
+                gf = 0.0
+                for c in range(3):
+                    mon[M_ACC_F + c] += z[kernel.ACC_F, c]
+                    gf += z[kernel.GYR_F, c] * z[kernel.GYR_F, c]
+                mon[M_REST_NF] += 1.0
+                g = max(g, math.sqrt(gf))
+            mon[M_GYRO_MAX] = max(mon[M_GYRO_MAX], g)
+        else:
+            _check_rest(mon, tp, counts)
+    # the innovation monitor: mean NIS over the last nis_window steps
+    w = int(tp[T_NIS_WINDOW])
+    n = int(mon[M_NIS_LEN])
+    pos = int(mon[M_NIS_POS])
+    mon[M_NIS_SUM] += nis
+    if n < w:
+        nis_buf[(pos + n) % w] = nis
+        n += 1
+    else:
+        mon[M_NIS_SUM] -= nis_buf[pos]
+        nis_buf[pos] = nis
+        pos = (pos + 1) % w
+    mon[M_NIS_LEN], mon[M_NIS_POS] = n, pos
+    sticky = int(mon[M_STICKY])
+    if n == w and mon[M_NIS_SUM] / w > tp[T_NIS_LIMIT]:
+        if not sticky & INCONSISTENT:
+            counts[C_INCONSISTENT] += 1
+        sticky |= INCONSISTENT
+    else:
+        sticky &= ~INCONSISTENT
+    mon[M_STICKY] = sticky
+    flags |= sticky
+    if mon[M_RESTARTED] != 0.0:
+        flags |= RESTARTED
+    if t - mon[M_T_START] < tp[T_REST_S]:
+        flags |= INITIALISING
+    o = kernel.emit(x, P, ia, fa, math.radians(mon[M_VERT]))
+    if tp[T_LEFT] != 0.0:  # back from the virtual right arm (params.mirror_vectors)
+        o[11] = -o[11]
+        o[14] = -o[14]
+    bad = (flags & MOUNTING_MISMATCH) != 0
+    no_fore = bad or tp[T_FOREARM] == 0.0 or (flags & FOREARM_MISSING) != 0
+    out[0, i] = t
+    for j in range(5):
+        gone = bad or (no_fore and j >= 3)
+        out[1 + j, i] = math.nan if gone else o[j]
+        out[12 + j, i] = math.nan if gone else o[5 + j]
+    for c in range(3):
+        out[6 + c, i] = math.nan if bad else o[10 + c]
+        out[9 + c, i] = math.nan if no_fore else o[13 + c]
+    # the whole arm's turn about the vertical (unobservable without a camera, carried by the
+    # gyros alone, contract §8 "Start"): the EKF's σ of it and the drift bound
+    out[17, i] = math.hypot(o[16], mon[M_VERT])
+    out[18, i] = flags
+
+
+@jit
+def track(
+    x: Any,
+    P: Any,
+    mon: Any,
+    nis_buf: Any,
+    tp: Any,
+    counts: Any,
+    t: Any,
+    z: Any,
+    have: Any,
+    avail: Any,
+    flags: Any,
+    fix_deg: Any,
+    ia: Any,
+    fa: Any,
+    x0: Any,
+    P0: Any,
+) -> Any:
+    """EKF steps at upper-arm times ``t`` (N,) s: per step ``z`` (N, 6, 3), ``avail``,
+    ``flags``, ``fix_deg`` (N,) as :func:`finish` takes them; ``have`` (8, 6): the slots a
+    step measures by its ``avail`` bits (:meth:`.model.Model.measured`). Returns ``x``, ``P``
+    and the rows ``out`` (19, N)."""
+    out = np.empty((19, t.shape[0]))
+    for i in range(t.shape[0]):
+        x, P, ts = begin(x, P, mon, tp, counts, t[i], x0, P0)
+        x, P, nis = kernel.ekf_step_packed(x, P, ts, z[i], have[avail[i]], ia, fa)
+        finish(
+            x, P, mon, nis_buf, tp, counts, t[i], ts, z[i], avail[i], flags[i], fix_deg[i],
+            nis, ia, fa, out, i,
+        )  # fmt: skip
+    return x, P, out
+
+
+@jit
+def feed(
+    kind: int,
+    t: Any,
+    u: Any,
+    v: Any,
+    final: bool,
+    upper: Any,
+    fore: Any,
+    cam: Any,
+    ptr: Any,
+    t_seen: Any,
+    x: Any,
+    P: Any,
+    mon: Any,
+    nis_buf: Any,
+    tp: Any,
+    counts: Any,
+    have: Any,
+    ia: Any,
+    fa: Any,
+    x0: Any,
+    P0: Any,
+) -> Any:
+    """One message through the EKF: :func:`pair`, then :func:`track` (one call from Python)."""
+    pt, z, avail, flags, fix = pair(kind, t, u, v, upper, fore, cam, ptr, t_seen, tp, counts, final)
+    return track(x, P, mon, nis_buf, tp, counts, pt, z, have, avail, flags, fix, ia, fa, x0, P0)
