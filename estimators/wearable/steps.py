@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from estimators.wearable import kernel
+from estimators.wearable import kernel, mounting
 from estimators.wearable.kernel import jit
 
 # row flags (the tracker's public names re-export these)
@@ -393,15 +393,22 @@ def track(
     fa: Any,
     x0: Any,
     P0: Any,
+    mis: Any,
+    basis: Any,
 ) -> Any:
     """EKF steps at upper-arm times ``t`` (N,) s: per step ``z`` (N, 6, 3), ``avail``,
     ``flags``, ``fix_deg`` (N,) as :func:`finish` takes them; ``have`` (8, 6): the slots a
-    step measures by its ``avail`` bits (:meth:`.model.Model.measured`). Returns ``x``, ``P``
-    and the rows ``out`` (19, N)."""
+    step measures by its ``avail`` bits (:meth:`.model.Model.measured`); ``mis`` (6, 3) and
+    ``basis`` (6, 3, 3): the mounting states (:mod:`.mounting`; ``mis`` all −1 without them).
+    Returns ``x``, ``P`` and the rows ``out`` (19, N)."""
     out = np.empty((19, t.shape[0]))
+    mounted = mis.max() >= 0
     for i in range(t.shape[0]):
         x, P, ts = begin(x, P, mon, tp, counts, t[i], x0, P0)
-        x, P, nis = kernel.ekf_step_packed(x, P, ts, z[i], have[avail[i]], ia, fa)
+        if mounted:  # the product's mounting states: the same step with them in h and H
+            x, P, nis = mounting.ekf_step(x, P, ts, z[i], have[avail[i]], ia, fa, mis, basis)
+        else:
+            x, P, nis = kernel.ekf_step_packed(x, P, ts, z[i], have[avail[i]], ia, fa)
         finish(
             x, P, mon, nis_buf, tp, counts, t[i], ts, z[i], avail[i], flags[i], fix_deg[i],
             nis, ia, fa, out, i,
@@ -432,7 +439,11 @@ def feed(
     fa: Any,
     x0: Any,
     P0: Any,
+    mis: Any,
+    basis: Any,
 ) -> Any:
     """One message through the EKF: :func:`pair`, then :func:`track` (one call from Python)."""
     pt, z, avail, flags, fix = pair(kind, t, u, v, upper, fore, cam, ptr, t_seen, tp, counts, final)
-    return track(x, P, mon, nis_buf, tp, counts, pt, z, have, avail, flags, fix, ia, fa, x0, P0)
+    return track(
+        x, P, mon, nis_buf, tp, counts, pt, z, have, avail, flags, fix, ia, fa, x0, P0, mis, basis
+    )

@@ -200,6 +200,7 @@ def _run(
         state.x, state.P, out = steps.feed(
             kind, t, u, v, final, upper, fore, cam, state.ptr, state.t_seen, state.x, state.P,
             state.mon, state.nis_buf, state.tp, state.counts, state.have, ia, fa, x0, P0,
+            model.mis_idx, model.mis_basis,
         )  # fmt: skip
     else:  # the UKF's update in Python between the same bookkeeping
         t, z, avail, flags, fix = steps.pair(
