@@ -76,7 +76,10 @@ class Settings(BaseSettings):
         default=2 << 30, gt=0, description="Per session: device bytes recorded at most."
     )
     ingest_max_bytes: int = Field(
-        default=64 << 20, gt=0, description="All devices' payloads waiting to be processed."
+        default=64 << 20,
+        gt=0,
+        description="All devices' payloads waiting to be processed (--workers N: shared by "
+        "the N local workers).",
     )
 
     # Auth

@@ -77,18 +77,24 @@ def _tree(pid: int) -> list[int]:
     return out
 
 
-def rss_mib(pid: int) -> float:
-    """Resident memory of the service: its process and every child (workers)."""
-    total = 0.0
+def rss_by_process(pid: int) -> list[float]:
+    """Resident memory (MiB) of the service's processes: ``pid`` first, then its children
+    (the workers of ``--workers N``)."""
+    out = []
     for p in _tree(pid):
         try:
             with open(f"/proc/{p}/status") as fh:
                 for line in fh:
                     if line.startswith("VmRSS:"):
-                        total += int(line.split()[1]) / 1024
+                        out.append(int(line.split()[1]) / 1024)
         except OSError:
             continue
-    return total
+    return out
+
+
+def rss_mib(pid: int) -> float:
+    """Resident memory of the service: its process and every child (workers)."""
+    return sum(rss_by_process(pid))
 
 
 # --------------------------------------------------------------------------- hostile payloads
@@ -185,7 +191,9 @@ from benchmarks.fuzz import hostile
 from protocol.zenoh_config import make_config
 endpoint, n, seed = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 rng = random.Random(seed)
-s = zenoh.open(make_config(connect=endpoint, mode="peer"))
+cfg = make_config(connect=endpoint, mode="peer")
+cfg.insert_json5("transport/shared_memory/enabled", "true")  # as Zenoh's default: a stranger's
+s = zenoh.open(cfg)
 time.sleep(1.0)
 sent = 0
 for _ in range(n):
@@ -211,7 +219,9 @@ def imu(n, t0):
 
 big = [imu(2000, 1.0 + 20.0 * k) for k in range(40)]  # the most a message may hold
 huge = imu(5000, 0.0)  # ~450 kB as in the finding: over the cap
-s = zenoh.open(make_config(connect=endpoint, mode="peer"))
+cfg = make_config(connect=endpoint, mode="peer")
+cfg.insert_json5("transport/shared_memory/enabled", "true")  # as Zenoh's default: a stranger's
+s = zenoh.open(cfg)
 pubs = {n: s.declare_publisher(f"rehab/{n}/imu/upperarm") for n in names}
 time.sleep(1.0)
 end, k, sent = time.monotonic() + seconds, 0, 0
@@ -226,17 +236,16 @@ s.close()
 
 
 PROBER = """
-import sys, time, httpx
-url, stop = sys.argv[1], sys.argv[2]
-import os
-with httpx.Client(base_url=url, timeout=30.0) as c:
+import os, sys, time, httpx
+url, stop, out = sys.argv[1], sys.argv[2], sys.argv[3]
+with httpx.Client(base_url=url, timeout=30.0) as c, open(out, "w", buffering=1) as fh:
     while not os.path.exists(stop):
         t0, p0 = time.time(), time.perf_counter()
         try:
             ok = c.get("/api/health").status_code == 200
         except httpx.HTTPError:
             ok = False
-        print(t0, time.perf_counter() - p0, int(ok), flush=True)
+        fh.write(f"{t0} {time.perf_counter() - p0} {int(ok)}\\n")
         time.sleep(0.1)
 """
 
@@ -249,8 +258,11 @@ class Prober:
     def __init__(self, url: str, work: Path) -> None:
         self.url = url
         self._stop = work / "prober.stop"
+        # a file, not a pipe: a pipe nobody reads until the end held ~1600 rows (~3 min), then
+        # blocked the prober, and a long run's flood went unprobed
+        self._out = work / "prober.txt"
         self._phases: list[tuple[float, str]] = [(0.0, "fuzz")]
-        self._proc: subprocess.Popen[str] | None = None
+        self._proc: subprocess.Popen[bytes] | None = None
         self.worst = 0.0
         self.worst_by_phase: dict[str, float] = {}
         self.failures = 0
@@ -258,9 +270,7 @@ class Prober:
 
     def start(self) -> None:
         self._proc = subprocess.Popen(
-            [sys.executable, "-c", PROBER, self.url, str(self._stop)],
-            stdout=subprocess.PIPE,
-            text=True,
+            [sys.executable, "-c", PROBER, self.url, str(self._stop), str(self._out)]
         )
 
     @property
@@ -274,8 +284,8 @@ class Prober:
     def finish(self) -> None:
         assert self._proc is not None
         self._stop.touch()
-        out, _ = self._proc.communicate(timeout=60)
-        for row in out.splitlines():
+        self._proc.wait(timeout=60)
+        for row in self._out.read_text().splitlines():
             t0, dt, ok = float(row.split()[0]), float(row.split()[1]), row.split()[2] == "1"
             phase = [name for since, name in self._phases if since <= t0][-1]
             self.worst = max(self.worst, dt)
@@ -310,7 +320,7 @@ def run(
     )  # fmt: skip
     out: dict[str, Any] = {"work": str(work), "workers": workers or 0}
     try:
-        wait_healthy(svc, url, log=work / "service.log")
+        wait_healthy(svc, url, timeout=180, log=work / "service.log")  # workers start first
         creds = read_admin_credentials(Settings(data_dir=work / "data"))
         assert creds is not None
         api = httpx.Client(base_url=url, timeout=60.0)
@@ -385,7 +395,8 @@ def run(
             [sys.executable, "-c", FLOODER, endpoint, str(flood_s), names, str(REPO)],
             cwd=REPO, env=env, stdout=subprocess.PIPE, text=True,
         )  # fmt: skip
-        rss0, peak = rss_mib(svc.pid), 0.0
+        procs0 = rss_by_process(svc.pid)
+        rss0, peak = sum(procs0), 0.0
         while flooder.poll() is None:
             peak = max(peak, rss_mib(svc.pid))
             time.sleep(0.2)
@@ -397,13 +408,17 @@ def run(
         prober.phase = "after"
         time.sleep(SETTLE_S)
         prober.finish()
+        procs = rss_by_process(svc.pid)
         health = api.get("/api/health")
         out.update(
             flood_messages=flood_sent,
             rss_before_flood_mib=round(rss0),
             rss_peak_flood_mib=round(peak),
             rss_after_flood_mib=round(rss_after_flood),
-            rss_settled_mib=round(rss_mib(svc.pid)),
+            rss_settled_mib=round(sum(procs)),
+            # per process (the API node, then its workers): which one keeps what
+            rss_before_flood_by_process_mib=[round(x) for x in procs0],
+            rss_settled_by_process_mib=[round(x) for x in procs],
             health_probes=prober.n,
             health_worst_ms=round(prober.worst * 1000),
             health_worst_ms_by_phase={k: round(v * 1000) for k, v in prober.worst_by_phase.items()},

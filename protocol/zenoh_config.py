@@ -25,6 +25,14 @@ import zenoh
 
 PLAIN = ("tcp", "udp", "ws", "unixsock-stream", "unixpipe")  # no authentication of the peer
 
+# Zenoh's shared memory: off (Zenoh's default is on). With it, each other process on the
+# machine that sends a message over 3 kB makes the receiver map that process's 16 MiB pool,
+# and the pages stay resident after the sender has gone: every flood from a new local process
+# left 32 MiB more in the API node and in each worker, for good (issue 21), and the sender
+# could change a payload's bytes while the service reads them. Over loopback TCP a
+# device's payload (1 MiB at most) is copied once; that costs nothing that matters.
+SHARED_MEMORY = False
+
 
 class ZenohConfigError(ValueError):
     """A refused Zenoh set-up; the message says what to do."""
@@ -185,6 +193,7 @@ def service_config(
         "listen": {"endpoints": [listen]},
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
         "transport": {
+            "shared_memory": {"enabled": SHARED_MEMORY},  # as make_config; zenohd reads this
             "link": {
                 "tls": {
                     "root_ca_certificate": str(ca),
@@ -193,7 +202,7 @@ def service_config(
                     "enable_mtls": True,
                     "verify_name_on_connect": True,
                 }
-            }
+            },
         },
         "access_control": {
             "enabled": True,
@@ -259,4 +268,5 @@ def make_config(
     )
     cfg.insert_json5("scouting/multicast/enabled", "false")
     cfg.insert_json5("transport/link/rx/max_message_size", str(RX_MAX_MESSAGE_BYTES))
+    cfg.insert_json5("transport/shared_memory/enabled", json.dumps(SHARED_MEMORY))
     return cfg

@@ -39,6 +39,7 @@ from backend.db.models import Device, Session
 from backend.db.sessions import get_session, stop_session
 from backend.deps import LiveUnavailable, Point, SessionInfo
 from backend.live import feed, files, lease
+from backend.live.budget import DEVICE_FLOOR_BYTES
 from backend.live.hub import Client, dumps
 from backend.live.manager import COMMAND_TIMEOUT_S, LiveManager
 from backend.live.node import control_key, feed_key, worker_key
@@ -74,12 +75,17 @@ def local_endpoint(listen: str) -> str:
     return f"{proto}/{host}:{port}"
 
 
-def worker_command(settings: Settings, endpoint: str | None) -> tuple[list[str], dict[str, str]]:
+def worker_command(
+    settings: Settings, endpoint: str | None, workers: int = 1
+) -> tuple[list[str], dict[str, str]]:
     """A local worker's command line and environment: the node's settings travel in
     ``REHAB_*`` variables (the database URL may hold a password: never on a command line,
-    which ``ps`` shows to every user)."""
+    which ``ps`` shows to every user). The ingest budget is the machine's: each of the
+    ``workers`` local workers gets its share (each had all of it: N times the budget queued
+    under a flood, and as much more memory until the backlog drained)."""
     env = dict(os.environ)
     env.update(
+        REHAB_INGEST_MAX_BYTES=str(max(settings.ingest_max_bytes // workers, DEVICE_FLOOR_BYTES)),
         REHAB_DATABASE_URL=settings.database_url or settings.db_url,
         REHAB_DATA_DIR=str(settings.data_dir),
         REHAB_KEY_PREFIX=settings.key_prefix,
@@ -128,7 +134,7 @@ class Gateway(LiveManager):
         # the children join this node's router, or the router this node is a client of
         endpoint = s.zenoh_connect or (local_endpoint(s.zenoh_listen) if s.zenoh_listen else None)
         if self.n_workers and (endpoint or s.zenoh_config) and self.zio is not None:
-            self._command, self._env = worker_command(s, endpoint)
+            self._command, self._env = worker_command(s, endpoint, self.n_workers)
             for _ in range(self.n_workers):
                 self.children.append(self._spawn())
             self._tasks.append(asyncio.create_task(self._supervise(), name="workers"))

@@ -14,7 +14,8 @@ import pytest
 
 from backend.db.engine import Database
 from backend.deps import SessionInfo
-from backend.live.gateway import Gateway
+from backend.live.budget import DEVICE_FLOOR_BYTES
+from backend.live.gateway import Gateway, worker_command
 from backend.settings import Settings
 
 
@@ -52,3 +53,17 @@ async def test_session_start_does_not_wait_for_a_holder_on_sqlite(tmp_path: Path
     finally:
         await node.close()
         await database.dispose()
+
+
+def test_local_workers_share_the_ingest_budget(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The node's ingest budget is the machine's: with ``--workers 2`` each local worker
+    queues at most half of it (each had all of it: twice the budget under a flood)."""
+    settings = Settings(data_dir=tmp_path, ingest_max_bytes=64 << 20)
+    _, env = worker_command(settings, "tcp/127.0.0.1:7447", workers=2)
+    for name in ("REHAB_INGEST_MAX_BYTES", "REHAB_DATA_DIR"):
+        monkeypatch.setenv(name, env[name])
+    assert Settings().ingest_max_bytes == 32 << 20  # what the worker process reads
+    _, env = worker_command(settings, "tcp/127.0.0.1:7447", workers=200)
+    assert int(env["REHAB_INGEST_MAX_BYTES"]) == DEVICE_FLOOR_BYTES  # never below a floor
