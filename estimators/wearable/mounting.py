@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from estimators.jit import jit
 from estimators.wearable import kernel
-from estimators.wearable.kernel import jit
 
 
 @jit

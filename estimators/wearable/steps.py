@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from estimators.jit import jit
 from estimators.wearable import kernel, mounting
-from estimators.wearable.kernel import jit
 
 # row flags (the tracker's public names re-export these)
 FOREARM_MISSING = 1  # no forearm sample paired: elbow angles and wrist empty
