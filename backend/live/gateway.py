@@ -7,7 +7,8 @@ write), and runs no pipeline: devices' data goes to the workers through its Zeno
   Zenoh query on ``<prefix>/@ctl/<device>``, answered by the one worker holding the device.
   Without a holder (no data yet), a start still succeeds: the session is in the database and
   the worker that takes the device runs it (workers follow the database every second).
-- WebSockets: fed with the dashboard messages the workers publish on ``<prefix>/@feed/*``,
+- WebSockets: fed with the dashboard messages the workers publish on ``<prefix>/@feed/*``
+  (one put per worker per 30 ms tick, messages joined by newlines),
   like any other Zenoh subscriber.
 - Local workers: ``N`` child processes (``rehab worker``), killed with the node.
 """
@@ -127,7 +128,7 @@ class Gateway(LiveManager):
         if self.zio is not None and self.zio.session is not None:
 
             def on_feed(sample: zenoh.Sample) -> None:
-                loop.call_soon_threadsafe(self._on_feed, sample.payload.to_bytes())
+                loop.call_soon_threadsafe(self._on_feeds, sample.payload.to_bytes())
 
             self._feed_sub = self.zio.session.declare_subscriber(feed_key(self.prefix), on_feed)
         s = self.settings
@@ -243,6 +244,11 @@ class Gateway(LiveManager):
             return True
         sid = self.session_of.get(device)
         return any(c.wants(device, sid) for c in self.hub.clients)
+
+    def _on_feeds(self, batch: bytes) -> None:
+        """A worker's batch: its dashboard messages of one tick, joined by newlines."""
+        for data in batch.split(b"\n"):
+            self._on_feed(data)
 
     def _on_feed(self, data: bytes) -> None:
         """A worker's dashboard message: to the therapists' sockets as it is; to the
