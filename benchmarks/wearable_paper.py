@@ -450,7 +450,7 @@ def coverage(seeds: int, dur: float) -> None:
     )
     print("| session | filter | " + " | ".join(a[:-4] for a in ANGLES) + " |")
     print("|---|---|" + "---|" * len(ANGLES))
-    for move in ("shoulder_wheel", "reaching"):
+    for move in ("shoulder_wheel", "reaching", "rom"):
         for cam in (True, False):
             for label, kw in (("product", {}), ("paper's A", PAPER_METHOD)):
                 # seeds 100+: never used while sizing the σ's systematic part (seeds 0–2)
