@@ -118,6 +118,15 @@ class WearableParams:
     # is reset by camera positions of a joint at least ``camera_fix_reach_m`` off the vertical.
     vertical_drift_dps: float = 0.2
     camera_fix_reach_m: float = 0.05
+    # The reported σ of each angle (θ0 θ1 θ2 θ4 θ5) adds what the filter's P cannot hold: the
+    # errors that are biases, not eq. 19's white noise (scale factors, accelerometer bias,
+    # segment lengths, soft tissue, the camera's offset and lag). Each angle's σ² gets
+    # ``floor²`` plus ``(share·θ)²`` (θ from the zero pose): soft tissue and scale errors grow
+    # with the angle; the forearm's skin turns most with pronation. Sized on simulated
+    # sessions (benchmarks/wearable_paper.py --only coverage) for ~95 % of errors within 2σ;
+    # zeros give the filter's own P (the paper's figure).
+    sigma_floor_deg: tuple[float, float, float, float, float] = (2.0, 2.0, 2.0, 3.5, 2.0)
+    sigma_share: tuple[float, float, float, float, float] = (0.03, 0.05, 0.05, 0.02, 0.12)
     init_sigma_deg: float = 5.0  # prior σ of each angle at the zero pose (contract §8 "Start")
     # streams
     forearm_tolerance_s: float = 0.006  # a forearm sample this close pairs with the upper one
@@ -144,6 +153,10 @@ class WearableParams:
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and 0.05 <= v <= 1.0):
                 raise WearableParamsError(f"{name} must be a length in [0.05, 1] m, not {v!r}")
+        for name in ("sigma_floor_deg", "sigma_share"):
+            v = getattr(self, name)
+            if len(v) != 5 or not all(math.isfinite(c) and c >= 0 for c in v):
+                raise WearableParamsError(f"{name} must be 5 finite numbers >= 0, not {v!r}")
         if not self.joints or any(j not in range(5) for j in self.joints):
             raise WearableParamsError(f"joints must be indices 0..4, not {self.joints!r}")
 

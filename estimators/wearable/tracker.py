@@ -227,7 +227,18 @@ def _run(
             )  # fmt: skip
         state.x, state.P = x, P
     _count(state)
+    _widen(params, out)
     return dict(zip(_ROW_KEYS, out, strict=True))
+
+
+def _widen(params: WearableParams, out: F64) -> None:
+    """The reported σ of each angle (rows 12–16 of ``out``, degrees, in place): the filter's
+    σ with the systematic floor and the share of the angle (:class:`WearableParams`
+    ``sigma_floor_deg``, ``sigma_share``); NaN (an angle not available) stays NaN."""
+    floor = np.asarray(params.sigma_floor_deg)[:, None]
+    share = np.asarray(params.sigma_share)[:, None]
+    if floor.any() or share.any():
+        out[12:17] = np.sqrt(out[12:17] ** 2 + floor**2 + (share * out[1:6]) ** 2)
 
 
 _ROW_KEYS = (*COLUMNS, *STD_COLUMNS, "flags")
