@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from backend import clinical
+from backend import clinical, csv_text
 from backend.analysis import dump_report
 from estimators.wearable import tracker
 from estimators.wearable.params import WearableParams, WearableParamsError
@@ -160,13 +160,17 @@ JOINTS_HEADER = ",".join(tracker.COLUMNS)
 _DIGITS = (6, *([3] * 5), *([4] * 6))
 
 
+_JOINTS_FMT = ",".join(f"%.{d}f" for d in _DIGITS)
+
+
 def joint_lines(rows: tracker.Rows) -> list[str]:
-    """joints.csv's lines (no newline) of some rows: empty cells where not available."""
-    cells = [  # column by column: one format per column, no call per cell
-        [f"{v:.{d}f}" if math.isfinite(v) else "" for v in rows[c].tolist()]
-        for c, d in zip(tracker.COLUMNS, _DIGITS, strict=True)
-    ]
-    return [",".join(row) for row in zip(*cells, strict=True)]
+    """joints.csv's lines (no newline) of some rows: empty cells where not available
+    (NaN or ±inf; the shared formatter empties NaN cells)."""
+    cols: list[csv_text.Column] = []
+    for c in tracker.COLUMNS:
+        v = np.asarray(rows[c], dtype=np.float64)
+        cols.append(v if np.isfinite(v).all() else np.where(np.isfinite(v), v, np.nan))
+    return csv_text.lines(_JOINTS_FMT, cols)
 
 
 def write_joints(rows: tracker.Rows, path: Path) -> None:

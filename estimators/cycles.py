@@ -121,7 +121,9 @@ class _MovingWindow:
     none). For each sample the mean of ``vals`` over the moving samples with
     ``t >= t[i] - centre_window_s`` (including ``i``) comes from exclusive prefix sums
     accumulated sequentially since the start, so the result does not depend on chunking.
-    One sample at a time (:meth:`step`); the history rows are float tuples in deques.
+    One sample at a time, helpers written out (this runs for every live sample):
+    :meth:`step_xy` for ``vals = (x, y)``, :meth:`step_moments` for ``(x, y, x², y², x y)``;
+    the history rows are float tuples in deques.
     """
 
     def __init__(self, p: CycleParams, width: int) -> None:
@@ -136,52 +138,8 @@ class _MovingWindow:
         self._pos_q: deque[tuple[float, ...]] = deque()
         self._h_q: deque[tuple[float, ...]] = deque()
 
-    def _moving(self, t: float, x: float, y: float) -> float:
-        """Queue one sample's position; 1.0 if it is moving, else 0.0."""
-        pos = self._pos_q
-        pos.append((t, x, y))
-        lim = t - self._lag
-        a = self._anchor
-        while pos and pos[0][0] <= lim:
-            a = pos.popleft()
-        self._anchor = a
-        if a is not None:
-            dx = x - a[1]
-            dy = y - a[2]
-            if dx * dx + dy * dy > self._r2:
-                return 1.0
-        return 0.0
-
-    def _window_start(self, t: float, tot: list[float]) -> tuple[float, ...]:
-        """Queue the sums before sample ``t``; the sums before the window's first sample."""
-        hist = self._h_q
-        hist.append((t, *tot))
-        lim = t - self._w
-        while hist[0][0] < lim:  # stops at the row just appended at the latest
-            hist.popleft()
-        return hist[0]
-
-    def step(
-        self, t: float, x: float, y: float, vals: tuple[float, ...]
-    ) -> tuple[list[float], float]:
-        """One sample (same arithmetic as :meth:`update`): means (width,), count."""
-        m = self._moving(t, x, y)
-        tot = self._total
-        pk = self._window_start(t, tot)
-        new = [tot[0] + m]
-        for c in range(self._width):  # plain loops: cheaper than comprehensions here
-            new.append(tot[c + 1] + vals[c] * m)
-        self._total = new
-        count = new[0] - pk[1]
-        means = [math.nan] * self._width
-        if count > 0.0:
-            for c in range(self._width):
-                means[c] = (new[c + 1] - pk[c + 2]) / count
-        return means, count
-
     def step_xy(self, t: float, x: float, y: float) -> tuple[float, float]:
-        """:meth:`step` with ``vals = (x, y)``, helpers written out (the path detector's
-        centre, for every live sample): the mean x and y."""
+        """One sample with ``vals = (x, y)`` (the path detector's centre): the mean x and y."""
         pos = self._pos_q
         pos.append((t, x, y))
         lim = t - self._lag
@@ -215,6 +173,56 @@ class _MovingWindow:
         if count > 0.0:
             return (s0 - pk[2]) / count, (s1 - pk[3]) / count
         return math.nan, math.nan
+
+    def step_moments(
+        self, t: float, x: float, y: float
+    ) -> tuple[float, float, float, float, float, float]:
+        """One sample with ``vals = (x, y, x², y², x y)`` (the reach detector's moments): the
+        five means and the count (the means NaN if it is 0)."""
+        pos = self._pos_q
+        pos.append((t, x, y))
+        lim = t - self._lag
+        a: tuple[float, ...] | None
+        if pos[0][0] <= lim:
+            a = pos.popleft()
+            while pos and pos[0][0] <= lim:
+                a = pos.popleft()
+            self._anchor = a
+        else:
+            a = self._anchor
+        m = 0.0
+        if a is not None:
+            dx = x - a[1]
+            dy = y - a[2]
+            if dx * dx + dy * dy > self._r2:
+                m = 1.0
+        hist = self._h_q
+        c0, s0, s1, s2, s3, s4 = self._total
+        hist.append((t, c0, s0, s1, s2, s3, s4))
+        lim = t - self._w
+        pk = hist[0]
+        while pk[0] < lim:
+            hist.popleft()
+            pk = hist[0]
+        c0 += m
+        s0 += x * m
+        s1 += y * m
+        s2 += x * x * m
+        s3 += y * y * m
+        s4 += x * y * m
+        self._total = [c0, s0, s1, s2, s3, s4]
+        count = c0 - pk[1]
+        if count > 0.0:
+            return (
+                (s0 - pk[2]) / count,
+                (s1 - pk[3]) / count,
+                (s2 - pk[4]) / count,
+                (s3 - pk[5]) / count,
+                (s4 - pk[6]) / count,
+                count,
+            )
+        nan = math.nan
+        return nan, nan, nan, nan, nan, count
 
 
 class _Detector:
@@ -431,7 +439,7 @@ class _ReachDetector(_Detector):
 
     def step(self, t: float, x: float, y: float, out: list[Boundary]) -> None:
         p = self.p
-        (mx, my, exx, eyy, exy), count = self._win.step(t, x, y, (x, y, x * x, y * y, x * y))
+        mx, my, exx, eyy, exy, count = self._win.step_moments(t, x, y)
         ux, uy, nrm = self._axis(mx, my, exx, eyy, exy)
         if not (nrm > 0.0 and count >= 3.0):
             return

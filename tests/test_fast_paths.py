@@ -19,7 +19,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from backend import analysis
+from backend import analysis, csv_text
 from protocol import keys, recording, wire
 
 KEYS = [
@@ -369,7 +369,7 @@ FORMATS = [
 @given(st.integers(0, 2**32 - 1), st.sampled_from(FORMATS))
 def test_column_formatter_is_percent_per_row(seed: int, fmt: str) -> None:
     rng = np.random.default_rng(seed)
-    n = 3 * analysis._VECTOR_ROWS
+    n = 3 * csv_text.VECTOR_ROWS
     pool = np.concatenate(
         [
             rng.normal(size=n) * 10.0 ** rng.integers(-7, 9, size=n),
@@ -386,13 +386,13 @@ def test_column_formatter_is_percent_per_row(seed: int, fmt: str) -> None:
             cols.append([str(s) for s in rng.choice(list(analysis.STATE_NAMES.values()), n)])
         else:
             cols.append(rng.choice(pool, size=n))
-    expected = analysis._format_rows(
+    expected = csv_text.format_rows(
         fmt, [c.tolist() if isinstance(c, np.ndarray) else c for c in cols]
     )
-    assert analysis._table_lines(fmt, cols) == expected
+    assert csv_text.table_lines(fmt, cols) == expected
     head = fmt.split(",")[0]
     if head in ("%r", "%s"):  # the first column's texts made beforehand (both files' t)
-        assert analysis._table_lines(fmt, cols, analysis._texts(head, cols[0])) == expected
+        assert csv_text.table_lines(fmt, cols, csv_text.texts(head, cols[0])) == expected
 
 
 def _line_reader(path: Path) -> tuple[list[tuple[str | None, Any]], str | None]:

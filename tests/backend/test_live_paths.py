@@ -20,7 +20,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from backend import analysis
+from backend import analysis, csv_text
 from protocol import recording
 
 SPECIAL = [0.0, -0.0, 0.5, -0.5, 2.5, 0.0005, 2.0005, 0.301475, -0.234775, 9.9999995]
@@ -98,8 +98,8 @@ def percent_per_row(rows: dict[str, np.ndarray]) -> tuple[list[str], list[str]]:
         a = rows[name]
         det += [a.tolist()] if a.ndim == 1 else [a[:, j].tolist() for j in range(a.shape[1])]
     return (
-        analysis._format_rows(analysis._EST_FMT, est),
-        analysis._format_rows(analysis._DET_FMT, det),
+        csv_text.format_rows(analysis._EST_FMT, est),
+        csv_text.format_rows(analysis._DET_FMT, det),
     )
 
 

@@ -125,3 +125,28 @@ def test_bad_messages_are_counted_by_reason() -> None:
     assert run.stats.rejected == {"not_object": 1, "ignored_robot": 1}
     assert run.run.rejected == {"not_object": 1, "ignored_robot": 1}
     assert run.status()["quality"]["rejected"]["not_object"] == 1
+
+
+@pytest.mark.parametrize("n", [3, 500])  # per-row and column-wise formatting
+def test_joint_lines_are_the_per_cell_format(n: int) -> None:
+    """joints.csv's text is ``f"{v:.{d}f}"`` per cell, empty where NaN or ±inf, whichever
+    formatter the row count picks (recorded 6-decimal values and exact ties included)."""
+    rng = np.random.default_rng(n)
+    pool = np.concatenate(
+        [
+            rng.normal(size=n) * 10.0 ** rng.integers(-6, 4, size=n),
+            rng.integers(-(10**9), 10**9, size=n) / 1e6,
+            rng.integers(-(2**20), 2**20, size=n) / 2.0**12,
+            [np.nan, np.inf, -np.inf, -0.0, 0.0, -0.0004, 0.0005, 2.0**53],
+        ]
+    )
+    rows = {c: rng.choice(pool, size=n) for c in tracker.COLUMNS}
+    digits = (6, *([3] * 5), *([4] * 6))
+    expected = [
+        ",".join(
+            f"{rows[c][i]:.{d}f}" if np.isfinite(rows[c][i]) else ""
+            for c, d in zip(tracker.COLUMNS, digits, strict=True)
+        )
+        for i in range(n)
+    ]
+    assert aw.joint_lines(rows) == expected  # type: ignore[arg-type]

@@ -444,7 +444,7 @@ def test_moving_window_means_by_definition(dts, width, seed):
         if width == 2:
             got = np.array(win.step_xy(float(t[i]), float(x[i]), float(y[i])))
         else:
-            got = np.array(win.step(float(t[i]), float(x[i]), float(y[i]), tuple(vals[i]))[0])
+            got = np.array(win.step_moments(float(t[i]), float(x[i]), float(y[i]))[:5])
         k = (t >= t[i] - p.centre_window_s) & (np.arange(t.size) <= i) & moving
         want = vals[k].mean(axis=0) if k.any() else np.full(width, np.nan)
         np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12)
