@@ -30,7 +30,11 @@ log = logging.getLogger(__name__)
 
 # An angle whose standard deviation is above this is not shown as sure (the dashboard greys
 # it and the ROM test ignores it): the vertical turn drifts without a camera (§8 "Start").
-SURE_STD_DEG = 5.0
+# The σ includes the model's errors (WearableParams.sigma_floor_deg/sigma_share: it covers
+# the error on ~95 % of samples); 7.5° keeps shoulder and elbow flexion sure over their
+# whole range (5.8° at 180° of shoulder flexion), within a goniometer's 5-10°, and greys a
+# drifting angle or pronation beyond ~60°, where the error grows with the angle.
+SURE_STD_DEG = 7.5
 ANGLES = aw.ANGLES
 STD_OF = dict(zip(ANGLES, tracker.STD_COLUMNS[:5], strict=True))
 # the rows' columns on the joints key and the WebSocket: §8's, then the extensions

@@ -12,7 +12,7 @@ import { WINDOW_S } from "../lib/live";
 import { Chart, LINE } from "../lib/plots";
 import type { RomTest, Session } from "../lib/types";
 
-const DEFAULT_SURE = 5;
+const DEFAULT_SURE = 7.5; // the service sends its own (status.sure_std_deg)
 
 export const ROM_MOVES: { value: string; label: string }[] = [
   { value: "shoulder_flexion", label: "Maximal shoulder flexion" },
