@@ -104,6 +104,8 @@ def worker_command(
 
 
 class Gateway(LiveManager):
+    RUNS_PIPELINES = False  # the workers do
+
     def __init__(
         self,
         settings: Settings,

@@ -31,7 +31,7 @@ from backend.db.engine import Database
 from backend.db.models import Cycle, Patient, Session
 from backend.db.sessions import get_session, record_cycle, stop_session
 from backend.deps import LiveUnavailable, Point, SessionInfo
-from backend.live import feed, files
+from backend.live import feed, files, warmup
 from backend.live.admission import Admission
 from backend.live.budget import IngestBudget
 from backend.live.device_audit import EventAuditor
@@ -72,6 +72,7 @@ DEVICE_QUEUE_BYTES = 32 << 20
 class LiveManager:
     # the process answers HTTP: a flood's rounds leave the loop free half the time
     SERVES_HTTP = True
+    RUNS_PIPELINES = True  # the API node of the workers mode runs none
 
     def __init__(
         self, settings: Settings, database: Database, interrupted: Sequence[int] = ()
@@ -104,6 +105,8 @@ class LiveManager:
     # ------------------------------------------------------------------ lifecycle
 
     async def start(self, require_zenoh: bool = False) -> None:
+        if self.RUNS_PIPELINES:
+            warmup.load_kernels()  # before any data: not in a device's turn
         self.db.start()
         async with self.database.session() as db:
             for name in await registered_devices(db):
