@@ -1,6 +1,9 @@
 // The live feed: one WebSocket (/api/ws/live or /api/ws/overlay), per-device stores with the
 // last seconds of estimates, and frame-coalesced notifications (at most one per animation
-// frame, however many messages arrived).
+// frame, however many messages arrived). A device's messages are applied in order, one
+// message of rows per device per frame: rows that arrive together (network, service or
+// browser jitter) are drawn in consecutive frames, not in one, so the plots move evenly. A
+// message waits at most MAX_HOLD_MS for its frame (after a stall, the page catches up at once).
 
 import { JointSeries } from "./joints";
 import type {
@@ -13,6 +16,10 @@ import type {
 } from "./types";
 
 export const WINDOW_S = 30;
+/** The longest a message of rows waits for a frame of its own, milliseconds. */
+const MAX_HOLD_MS = 50;
+
+const hasRows = (m: LiveMsg): boolean => m.type === "estimate" || m.type === "joints";
 
 export interface Latest {
   t: number | null;
@@ -217,6 +224,8 @@ export interface LiveStats {
   messages: number;
   estimates: Record<string, number>;
   frames: Record<string, number>;
+  /** animation frames in which the feed's listeners ran */
+  animationFrames: number;
 }
 
 declare global {
@@ -235,7 +244,9 @@ export class LiveClient {
   private backoff = 500;
   private timer: number | undefined;
   private closed = false;
-  readonly stats: LiveStats = { messages: 0, estimates: {}, frames: {} };
+  readonly stats: LiveStats = { messages: 0, estimates: {}, frames: {}, animationFrames: 0 };
+  /** per device, messages not applied yet with their arrival times (in arrival order) */
+  private queues = new Map<string, { msg: LiveMsg; at: number }[]>();
 
   /**
    * @param path e.g. "/api/ws/live?devices=a,b" or "/api/ws/overlay"
@@ -329,29 +340,55 @@ export class LiveClient {
 
   private handle(msg: LiveMsg): void {
     this.stats.messages++;
+    if (msg.type === "hello") {
+      this.known = [...(msg.devices ?? [])].sort();
+      for (const d of this.known) this.device(d);
+    } else {
+      const name = this.nameOf(msg.device);
+      if (hasRows(msg)) this.stats.estimates[name] = (this.stats.estimates[name] ?? 0) + 1;
+      let q = this.queues.get(name);
+      if (!q) this.queues.set(name, (q = []));
+      q.push({ msg, at: performance.now() });
+    }
+    this.changed();
+  }
+
+  /** Apply the queued messages: all of them, or per device up to one message of rows
+   * plus those held for MAX_HOLD_MS. @returns whether messages are left for the next frame */
+  private drain(all: boolean): boolean {
+    const due = performance.now() - MAX_HOLD_MS;
+    let left = false;
+    for (const q of this.queues.values()) {
+      let rows = 0;
+      while (q.length) {
+        const { msg, at } = q[0]!;
+        if (hasRows(msg)) {
+          if (rows > 0 && !all && at > due) break;
+          rows++;
+        }
+        q.shift();
+        this.apply(msg);
+      }
+      left ||= q.length > 0;
+    }
+    return left;
+  }
+
+  private apply(msg: LiveMsg): void {
     switch (msg.type) {
-      case "hello":
-        this.known = [...(msg.devices ?? [])].sort();
-        for (const d of this.known) this.device(d);
-        break;
       case "status": {
         const d = this.device(this.nameOf(msg.device));
         d.applyStatus(msg);
         if (!this.known.includes(d.name)) this.known = [...this.known, d.name].sort();
         break;
       }
-      case "estimate": {
-        const name = this.nameOf(msg.device);
-        this.device(name).applyRows(msg.rows);
-        this.stats.estimates[name] = (this.stats.estimates[name] ?? 0) + 1;
+      case "estimate":
+        this.device(this.nameOf(msg.device)).applyRows(msg.rows);
         break;
-      }
       case "joints": {
-        const name = this.nameOf(msg.device);
-        const d = this.device(name);
+        const d = this.device(this.nameOf(msg.device));
         d.joints.apply(msg.rows, WINDOW_S);
         d.version++;
-        this.stats.estimates[name] = (this.stats.estimates[name] ?? 0) + 1;
         break;
       }
       case "state":
@@ -363,18 +400,22 @@ export class LiveClient {
       default:
         return;
     }
-    this.changed();
   }
 
   private changed(): void {
     if (this.scheduled) return;
     this.scheduled = true;
+    // Hidden pages get no animation frames; the game's pause logic must still run (there,
+    // every 50 ms, all that came is applied at once).
+    const hidden = document.hidden;
     const run = () => {
       this.scheduled = false;
+      const left = this.drain(hidden);
+      if (!hidden) this.stats.animationFrames++;
       this.listeners.forEach((fn) => fn());
+      if (left) this.changed();
     };
-    // Hidden pages get no animation frames; the game's pause logic must still run.
-    if (document.hidden) window.setTimeout(run, 50);
+    if (hidden) window.setTimeout(run, 50);
     else requestAnimationFrame(run);
   }
 }
