@@ -20,6 +20,7 @@ COPY evaluation evaluation
 RUN pip install --no-cache-dir -c constraints.txt -e . \
     && apt-get update -qq && apt-get install -y -qq --no-install-recommends gcc libc6-dev \
     && python -m estimators.aot \
+    && python -m compileall -q backend estimators simulator protocol evaluation \
     && apt-get purge -y -qq gcc libc6-dev && apt-get autoremove -y -qq \
     && rm -rf /var/lib/apt/lists/* \
     && useradd --system --home-dir /data rehab && mkdir -p /data && chown rehab /data
