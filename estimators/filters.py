@@ -29,7 +29,7 @@ from typing import Any, TypeAlias
 import numpy as np
 from numpy.typing import NDArray
 
-from estimators.jit import jit
+from estimators.jit import aot
 
 Array: TypeAlias = NDArray[np.float64]
 CArray: TypeAlias = NDArray[np.complex128]
@@ -127,7 +127,7 @@ def butter_sos(order: int, cutoff_hz: float, fs_hz: float, btype: str = "lowpass
     return sos
 
 
-@jit
+@aot("void(f8[:, ::1], f8[:, ::1], f8[:, :, ::1])")
 def _sosfilt(sos: Any, x: Any, zi: Any) -> None:  # pragma: no cover - compiled
     """In place: ``x`` (N, C) becomes the output and ``zi`` (sections, 2, C) the final
     state. Direct form II transposed, section after section, in ``scipy.signal.sosfilt``'s

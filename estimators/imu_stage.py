@@ -15,7 +15,7 @@ from estimators import quaternion as quat
 from estimators import rows
 from estimators.buffers import RowBuffer
 from estimators.filters import LowPass
-from estimators.jit import jit
+from estimators.jit import aot
 from estimators.output import Quality
 from estimators.params import PipelineParams
 
@@ -28,7 +28,7 @@ _FEW_SAMPLES = 8  # up to this many samples per piece, per-sample work in Python
 _MIRROR = _FEW_SAMPLES  # a larger piece leaves this many of its newest samples in the mirror
 
 
-@jit
+@aot("f8[:, ::1](f8[:, :], i8[:], f8[:, :])")
 def _weighted_sums(w: Any, start: Any, x: Any) -> Any:  # pragma: no cover - compiled
     """``out[i] = Σ_j w[i, j] · x[start[i] + j]`` for w (n, m), x (N, C), summed in order of
     j (the sums of a CSR sparse product; no (n, m, C) array of windows: 26 MB for 8 min)."""

@@ -15,12 +15,12 @@ from typing import Any, TypeAlias
 import numpy as np
 from numpy.typing import NDArray
 
-from estimators.jit import jit
+from estimators.jit import aot
 
 Array: TypeAlias = NDArray[np.float64]
 
 
-@jit
+@aot("i8[::1](f8[::1], f8)")
 def _peaks(x: Any, floor: float) -> Any:  # pragma: no cover - compiled
     out = np.empty(len(x), dtype=np.int64)
     count = 0

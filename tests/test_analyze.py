@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -79,6 +80,34 @@ def test_analyze_imports_neither_the_service_nor_the_simulator(rec: Path, tmp_pa
         [sys.executable, "-m", "backend.cli", "serve", "--help"], capture_output=True, text=True
     )
     assert serve.returncode == 0 and "--workers" in serve.stdout
+
+
+def test_analyze_with_kernels_built_ahead_of_time(rec: Path, tmp_path: Path) -> None:
+    """With ``estimators._kernels`` built (``./run``'s set-up): `rehab analyze` imports no
+    numba, and writes the same bytes as with numba's JIT of the same kernels (REHAB_AOT=0)."""
+    code = (
+        "import sys; from backend.cli import main; "
+        f"main(['analyze', {str(rec / 'recording.jsonl.gz')!r}, '--out', sys.argv[1]]); "
+        "from estimators import filters, imu_stage, jit, peaks; "
+        "print(all(jit.uses_aot(k) for k in (filters._sosfilt, imu_stage._weighted_sums, "
+        "peaks._peaks)), 'numba' in sys.modules)"
+    )
+    for out, aot_env in (("aot", "1"), ("jit", "0")):
+        run = subprocess.run(
+            [sys.executable, "-c", code, str(tmp_path / out)],
+            capture_output=True,
+            text=True,
+            check=True,
+            env={**os.environ, "REHAB_AOT": aot_env},
+        )
+        used, numba = run.stdout.splitlines()[-1].split()
+        if aot_env == "1" and used == "False":
+            pytest.skip(
+                "kernels not built, or built from an older source: python -m estimators.aot"
+            )
+        assert (used, numba) == (("True", "False") if aot_env == "1" else ("False", "True"))
+    for f in ("estimates.csv", "details.csv", "report.json"):
+        assert (tmp_path / "aot" / f).read_bytes() == (tmp_path / "jit" / f).read_bytes()
 
 
 def test_analyze_is_deterministic(rec: Path) -> None:

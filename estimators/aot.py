@@ -1,0 +1,85 @@
+"""Build ``estimators._kernels``: the robot pipeline's kernels (those declared with
+:func:`estimators.jit.aot`) compiled ahead of time by numba's ``pycc`` from their Python
+source, into an extension module that needs numpy only (see :mod:`estimators.jit` for why).
+
+    python -m estimators.aot [--check] [--out DIR]
+
+``--check`` only reports (exit status 1 if a kernel is missing from the built module).
+Build-time only: ``./run``'s set-up and the Docker image run it; without the module every
+kernel is numba's JIT, the same code. numba marks ``pycc`` as pending deprecation (0.57) with
+no replacement yet: the day it goes, the fallback keeps everything working, slower to start.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+import warnings
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+from estimators import jit
+
+# the modules holding the kernels declared with ``aot``
+KERNEL_MODULES = ("estimators.filters", "estimators.imu_stage", "estimators.peaks")
+PACKAGE_DIR = Path(__file__).resolve().parent
+
+
+def kernels() -> dict[str, jit.Kernel]:
+    """Every ahead-of-time kernel, by export name."""
+    for m in KERNEL_MODULES:
+        importlib.import_module(m)
+    return dict(jit.KERNELS)
+
+
+def missing(module: ModuleType | None) -> list[str]:
+    """Export names of the current kernels that ``module`` does not hold."""
+    return [k for k in kernels() if module is None or not hasattr(module, k)]
+
+
+def build(out_dir: Path) -> Path:
+    """Compile every kernel into ``out_dir``/_kernels<suffix>; returns the file."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # pycc's pending deprecation
+        pycc: Any = importlib.import_module("numba.pycc")  # untyped
+
+    name = jit.MODULE.rsplit(".", 1)[-1]
+    cc = pycc.CC(name, source_module=__name__)
+    cc.output_dir = str(out_dir)
+    for k in kernels().values():
+        cc.export(k.export, k.signature)(k.fn)
+    cc.compile()  # for any x86-64 CPU (pycc's default target), so an image runs anywhere
+    return out_dir / str(cc.output_file)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument("--check", action="store_true", help="only report what is missing")
+    ap.add_argument("--out", type=Path, default=PACKAGE_DIR, help="directory of the module")
+    args = ap.parse_args(argv)
+    try:
+        built: ModuleType | None = importlib.import_module(jit.MODULE)
+    except ImportError:
+        built = None
+    todo = missing(built)
+    if args.check:
+        for k in todo:
+            print(f"not built (or stale): {k}")
+        return 1 if todo else 0
+    if not todo and args.out.resolve() == PACKAGE_DIR and built is not None:
+        # touched, so that ./run's check (the module newer than the estimators) passes
+        os.utime(str(built.__file__))
+        print(f"{jit.MODULE}: up to date ({len(kernels())} kernels)")
+        return 0
+    path = build(args.out)
+    print(f"built {path} ({len(kernels())} kernels)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
