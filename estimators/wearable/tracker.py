@@ -83,6 +83,8 @@ class TrackerState:
     # the σ's doubt after a large shoulder rotation (:func:`_doubt`): the first row's time and
     # the running peak of log(g) + (t − t_first)/τ
     doubt: F64 = field(default_factory=lambda: np.array([math.nan, -math.inf]))
+    # the σ's terms: floor², share², doubt², each (5, 1) (:func:`_widen`)
+    widen: F64 = field(default_factory=lambda: np.zeros((3, 5, 1)))
 
     @property
     def steps(self) -> int:
@@ -124,7 +126,10 @@ def initial_state(params: WearableParams) -> TrackerState:
     )
     x0, P0 = model.initial()
     mon, nis_buf, counts = steps.new_state(params.nis_window)
-    return TrackerState(model, tp, have, x0, P0, x0, P0, mon, nis_buf, counts)
+    state = TrackerState(model, tp, have, x0, P0, x0, P0, mon, nis_buf, counts)
+    terms = (params.sigma_floor_deg, params.sigma_share, params.sigma_doubt)
+    state.widen = np.square(np.array(terms, dtype=np.float64))[:, :, None]
+    return state
 
 
 Rows = dict[str, F64]
@@ -240,20 +245,20 @@ def _widen(params: WearableParams, state: TrackerState, out: F64) -> None:
     rotation and pronation's with a vertical forearm (:class:`WearableParams`
     ``sigma_floor_deg``, ``sigma_share``, ``sigma_doubt``, ``sigma_pronation_vertical_deg``);
     NaN (an angle not available) stays NaN."""
-    floor = np.asarray(params.sigma_floor_deg)[:, None]
-    share = np.asarray(params.sigma_share)[:, None]
-    doubt = np.asarray(params.sigma_doubt)[:, None]
+    floor2, share2, doubt2 = state.widen  # (5, 1) each, squared
     vertical = params.sigma_pronation_vertical_deg
-    if floor.any() or share.any() or doubt.any() or vertical:
-        extra = floor**2 + (share * out[1:6]) ** 2
-        if doubt.any() and out.shape[1]:
-            extra = extra + (doubt * _doubt(params, state, out[0], out[3])) ** 2
-        if vertical:  # the forearm's direction's vertical component, squared
-            d = out[9:12] - out[6:9]
-            with np.errstate(invalid="ignore"):
-                c2 = np.nan_to_num(d[2] ** 2 / np.sum(d**2, axis=0))
-            extra[4] += (vertical * c2) ** 2
-        out[12:17] = np.sqrt(out[12:17] ** 2 + extra)
+    if not (floor2.any() or share2.any() or doubt2.any() or vertical) or not out.shape[1]:
+        return
+    extra = floor2 + share2 * out[1:6] ** 2
+    if doubt2.any():
+        h = _doubt(params, state, out[0], out[3])
+        extra += doubt2 * (h * h)
+    if vertical:  # the forearm's direction's vertical component, squared (0 if unknown)
+        d = out[9:12] - out[6:9]
+        d *= d
+        c2 = np.fmax(d[2] / np.maximum(d[0] + d[1] + d[2], 1e-12), 0.0)
+        extra[4] += (vertical * c2) ** 2
+    out[12:17] = np.sqrt(out[12:17] ** 2 + extra)
 
 
 def _doubt(params: WearableParams, state: TrackerState, t: F64, rotation_deg: F64) -> F64:
@@ -263,10 +268,10 @@ def _doubt(params: WearableParams, state: TrackerState, t: F64, rotation_deg: F6
     (``state.doubt``), so that any grouping of the rows gives the same numbers."""
     if math.isnan(state.doubt[0]):
         state.doubt[0] = t[0]
-    g = np.abs(np.nan_to_num(rotation_deg)) - params.doubt_rotation_deg
+    g = np.abs(rotation_deg) - params.doubt_rotation_deg
     x = (t - state.doubt[0]) / params.doubt_tau_s
-    with np.errstate(divide="ignore"):
-        peak = np.maximum.accumulate(np.log(np.maximum(g, 0.0)) + x)
+    # no excess (or no angle): g of 1e-300, which exp(log) gives back (no log 0 warning)
+    peak = np.maximum.accumulate(np.log(np.fmax(g, 1e-300)) + x)
     peak = np.maximum(peak, state.doubt[1])
     state.doubt[1] = peak[-1]
     return np.asarray(np.exp(peak - x), dtype=np.float64)
