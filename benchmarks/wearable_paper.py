@@ -62,6 +62,8 @@ PAPER_METHOD = {
     "mounting_states": False,
     "sigma_floor_deg": (0.0,) * 5,
     "sigma_share": (0.0,) * 5,
+    "sigma_doubt": (0.0,) * 5,
+    "sigma_pronation_vertical_deg": 0.0,
 }
 PAPER_T10 = {"Shoulder": (4.7, 0.9, 5.9, 0.8), "Elbow": (5.9, 1.0, 6.9, 1.4)}
 

@@ -127,6 +127,20 @@ class WearableParams:
     # zeros give the filter's own P (the paper's figure).
     sigma_floor_deg: tuple[float, float, float, float, float] = (2.0, 2.0, 2.0, 3.5, 2.0)
     sigma_share: tuple[float, float, float, float, float] = (0.03, 0.05, 0.05, 0.02, 0.12)
+    # Without a camera a large shoulder rotation (|θ2| beyond ``doubt_rotation_deg``; the arm
+    # turns about the vertical, which gravity does not see) leaves offsets of 5–18° in the
+    # flexions and pronation that persist for tens of seconds, at any later pose (the zero
+    # pose included), while P stays at 0.1–0.5°. Each angle's σ² adds ``(doubt·g)²``, g the
+    # rotation's excess in degrees, held at its peak and fading with ``doubt_tau_s`` (sample
+    # time). Sized with the floors on seeds 0–2; zeros give the filter's own P.
+    sigma_doubt: tuple[float, float, float, float, float] = (0.26, 0.0, 0.0, 0.28, 0.16)
+    doubt_rotation_deg: float = 30.0
+    doubt_tau_s: float = 40.0
+    # Pronation is a turn about the forearm's axis: with the forearm vertical (the arm hanging)
+    # it is a turn about the vertical, which gravity does not see. Its σ² adds
+    # ``(sigma_pronation_vertical_deg·c²)²``, c the vertical component of the forearm's
+    # direction (estimated elbow to wrist). Sized on seeds 0–2; zero gives the filter's P.
+    sigma_pronation_vertical_deg: float = 4.0
     init_sigma_deg: float = 5.0  # prior σ of each angle at the zero pose (contract §8 "Start")
     # streams
     forearm_tolerance_s: float = 0.006  # a forearm sample this close pairs with the upper one
@@ -153,10 +167,17 @@ class WearableParams:
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and 0.05 <= v <= 1.0):
                 raise WearableParamsError(f"{name} must be a length in [0.05, 1] m, not {v!r}")
-        for name in ("sigma_floor_deg", "sigma_share"):
+        for name in ("sigma_floor_deg", "sigma_share", "sigma_doubt"):
             v = getattr(self, name)
             if len(v) != 5 or not all(math.isfinite(c) and c >= 0 for c in v):
                 raise WearableParamsError(f"{name} must be 5 finite numbers >= 0, not {v!r}")
+        v = self.sigma_pronation_vertical_deg
+        if not (math.isfinite(v) and v >= 0):
+            raise WearableParamsError(f"sigma_pronation_vertical_deg must be >= 0, not {v!r}")
+        for name in ("doubt_rotation_deg", "doubt_tau_s"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise WearableParamsError(f"{name} must be a finite number > 0, not {v!r}")
         if not self.joints or any(j not in range(5) for j in self.joints):
             raise WearableParamsError(f"joints must be indices 0..4, not {self.joints!r}")
 

@@ -436,7 +436,10 @@ def test_confidence_is_honest_about_the_vertical_without_camera():
     fn = _motion((0, 0, 0, 0, 0), 0.3)
     t, msgs = _session(fn, dur=10.0)
     # the filter's own σ (no systematic floor: compares what the sensors tell)
-    rows, _ = tracker.run(WearableParams(sigma_floor_deg=(0.0,) * 5, sigma_share=(0.0,) * 5), msgs)
+    rows, _ = tracker.run(
+        WearableParams(sigma_floor_deg=(0.0,) * 5, sigma_share=(0.0,) * 5, sigma_doubt=(0.0,) * 5),
+        msgs,
+    )
     v = rows["vertical_std_deg"]
     k5 = np.searchsorted(t, 5.0)
     assert np.all(np.diff(v[k5::100]) > 0)  # it only grows, at least as fast as a 0.1 °/s bias
@@ -493,28 +496,57 @@ def _coverage(move: str, camera: bool, seed: int, **kw) -> dict[str, float]:
     return out
 
 
-@pytest.mark.parametrize(("move", "camera"), [("shoulder_wheel", True), ("reaching", False)])
-def test_reported_sigma_covers_the_error(move, camera):
+@pytest.mark.parametrize(
+    ("move", "camera", "least"),
+    [("shoulder_wheel", True, 0.95), ("reaching", False, 0.95), ("rom", False, 0.85)],
+)
+def test_reported_sigma_covers_the_error(move, camera, least):
     """Issue 19: the dashboard must never show an angle as surer than it is. The reported σ
-    covers the error (~95 % within 2σ; here at least 85 % per angle on one session), while
+    covers the error (~95 % within 2σ; here at least 95 % per angle on one 30-s session, 85 %
+    on the ROM moves without a camera: 88 % abduction, 85 % elbow on this seed), while
     the filter's own P (the paper's figure, floors off) does not: the camera's offset and lag,
     scale errors and soft tissue are biases, not the white noise of eq. 19."""
     product = _coverage(move, camera, seed=7)
-    bare = _coverage(move, camera, seed=7, sigma_floor_deg=(0.0,) * 5, sigma_share=(0.0,) * 5)
+    off = {k: (0.0,) * 5 for k in ("sigma_floor_deg", "sigma_share", "sigma_doubt")}
+    bare = _coverage(move, camera, seed=7, **off, sigma_pronation_vertical_deg=0.0)
     for a in ANGLES_ALL:
-        assert product[a] >= 0.85, (a, product)
+        assert product[a] >= least, (a, product)
     assert min(bare.values()) < 0.5, bare  # the check can fail: P alone is over-confident
 
 
+def test_doubt_after_a_large_rotation_fades_and_ignores_grouping():
+    """The doubt term: the rotation's excess over ``doubt_rotation_deg`` held at its peak,
+    fading with ``doubt_tau_s`` in sample time; the same numbers in any grouping."""
+    p = WearableParams(doubt_rotation_deg=30.0, doubt_tau_s=40.0)
+    t = 5.0 + np.arange(300) / 100.0
+    rot = np.where(t < 6.0, 10.0 * (t - 5.0) * 6.0, np.nan)  # up to 60° by 6 s, then gone
+    rot[200:] = 0.0
+    whole = tracker._doubt(p, tracker.initial_state(p), t, rot)
+    want = np.maximum.accumulate(
+        np.maximum(np.nan_to_num(np.abs(rot)) - 30.0, 0.0) * np.exp(t / 40.0)
+    )
+    np.testing.assert_allclose(whole, want * np.exp(-t / 40.0), rtol=1e-12, atol=1e-250)
+    assert whole[50] < 1e-250 and whole[-1] == pytest.approx(29.4 * np.exp(-2.0 / 40.0), rel=1e-9)
+    state = tracker.initial_state(p)
+    parts = [tracker._doubt(p, state, t[i : i + 7], rot[i : i + 7]) for i in range(0, 300, 7)]
+    np.testing.assert_array_equal(np.concatenate(parts), whole)
+
+
 def test_reported_sigma_widening_keeps_missing_angles_missing():
-    p = WearableParams(sigma_floor_deg=(1.0, 1.0, 1.0, 2.0, 2.0), sigma_share=(0.1,) * 5)
+    p = WearableParams(
+        sigma_floor_deg=(1.0, 1.0, 1.0, 2.0, 2.0),
+        sigma_share=(0.1,) * 5,
+        sigma_pronation_vertical_deg=3.0,
+    )
     out = np.zeros((19, 2))
+    out[9:12, 0] = (0.0, 0.3, -0.4)  # the forearm 0.8 (squared 0.64) vertical
     out[1:6, 0] = [10.0, 0.0, -20.0, 30.0, 0.0]
     out[12:17, 0] = 0.5
     out[4:6, 1] = np.nan
     out[15:17, 1] = np.nan
-    tracker._widen(p, out)
+    tracker._widen(p, tracker.initial_state(p), out)
     want = np.sqrt(0.25 + np.array([1.0, 1.0, 1.0, 4.0, 4.0]) + (0.1 * out[1:6, 0]) ** 2)
+    want[4] = np.sqrt(want[4] ** 2 + (3.0 * 0.64) ** 2)
     np.testing.assert_allclose(out[12:17, 0], want)
     assert np.isnan(out[15:17, 1]).all() and np.isfinite(out[12:15, 1]).all()
     with pytest.raises(WearableParamsError):
