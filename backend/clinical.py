@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from estimators import anatomy
 from estimators import movement_quality as mq
-from estimators.cycles import CycleParams, CycleSegmenter, Mode
+from estimators.cycles import CycleParams, CycleSegmenter, path_and_reach
 
 # the estimate rows' columns the sections need beyond the analysis' own statistics
 COLUMNS = ("q_ra", "wrist")
@@ -236,16 +236,18 @@ def wearable_movements(
     base = params if params is not None else CycleParams()
     ok = np.all(np.isfinite(wrist), axis=1) if len(wrist) else np.zeros(0, dtype=bool)
     tt, ww = np.asarray(t, dtype=np.float64)[ok], np.asarray(wrist, dtype=np.float64)[ok]
-    modes: tuple[Mode, ...] = ("events",) if len(event_times) else ("path", "reach")
-    best: list[dict[str, Any]] = []
-    for mode in modes:
-        seg = CycleSegmenter(dataclasses.replace(base, mode=mode))
+    if len(event_times):
+        seg = CycleSegmenter(dataclasses.replace(base, mode="events"))
         for te in sorted(event_times):
             seg.add_event(float(te))
-        found = seg.update(tt, ww) + seg.update(np.zeros(0), np.zeros((0, 3)))
+        found = [seg.update(tt, ww) + seg.update(np.zeros(0), np.zeros((0, 3)))]
+    else:  # both detectors in one pass; the path detector's wins a tie
+        found = list(path_and_reach(tt, ww, base))
+    best: list[dict[str, Any]] = []
+    for bounds in found:
         got = [
             {"start": float(b.cycle_start), "end": float(b)}
-            for b in found
+            for b in bounds
             if b.cycle_start is not None
         ]
         if len(got) > len(best):

@@ -321,10 +321,16 @@ class _PathDetector(_Detector):
             self._restart(t1, p1)
 
     def step(self, t: float, x: float, y: float, out: list[Boundary]) -> None:
+        cx, cy = self._win.step_xy(t, x, y)
+        self.step_at(t, x, y, cx, cy, out)
+
+    def step_at(
+        self, t: float, x: float, y: float, cx: float, cy: float, out: list[Boundary]
+    ) -> None:
+        """:meth:`step` with the running centre ``(cx, cy)`` of the moving window given."""
         # the phase step's wrap to (-pi, pi], anchor() and _level() written out: this runs
         # for every live sample
         p = self.p
-        cx, cy = self._win.step_xy(t, x, y)
         vx = x - cx
         vy = y - cy
         if not vx * vx + vy * vy >= self._r2min:
@@ -408,9 +414,6 @@ class _ReachDetector(_Detector):
         else:
             self._ref = (ux, uy) if ux > 0 else (-ux, -uy)
 
-    def _fold(self, lo: float, hi: float) -> None:
-        self._run = (min(self._run[0], lo), max(self._run[1], hi))
-
     def _fire(self, b: float, t1: float, p1: float, out: list[Boundary]) -> bool:
         """A return to the near end at ``b``; False: the detector must restart."""
         run = self._run
@@ -423,9 +426,23 @@ class _ReachDetector(_Detector):
 
     # -- per sample ---------------------------------------------------------------------------
 
-    def _axis(
-        self, mx: float, my: float, exx: float, eyy: float, exy: float
-    ) -> tuple[float, float, float]:
+    def step(self, t: float, x: float, y: float, out: list[Boundary]) -> None:
+        self.step_at(t, x, y, self._win.step_moments(t, x, y), out)
+
+    def step_at(
+        self,
+        t: float,
+        x: float,
+        y: float,
+        moments: tuple[float, float, float, float, float, float],
+        out: list[Boundary],
+    ) -> None:
+        """:meth:`step` with the moving window's moments (:meth:`_MovingWindow.step_moments`)
+        given."""
+        p = self.p
+        mx, my, exx, eyy, exy, count = moments
+        # the principal axis (closed-form 2x2 eigenvector), anchor(), the Schmitt trigger and
+        # the running range's min/max written out: this runs for every live sample
         a = exx - mx * mx
         c = eyy - my * my
         b = exy - mx * my
@@ -435,18 +452,18 @@ class _ReachDetector(_Detector):
             ux, uy = lam - c, b
         else:
             ux, uy = b, lam - a
-        return ux, uy, math.sqrt(ux * ux + uy * uy)
-
-    def step(self, t: float, x: float, y: float, out: list[Boundary]) -> None:
-        p = self.p
-        mx, my, exx, eyy, exy, count = self._win.step_moments(t, x, y)
-        ux, uy, nrm = self._axis(mx, my, exx, eyy, exy)
+        nrm = math.sqrt(ux * ux + uy * uy)
         if not (nrm > 0.0 and count >= 3.0):
             return
         ux = ux / nrm
         uy = uy / nrm
         prev = self._prev
-        if prev is None or t - prev[0] > p.max_gap_s or t > self.anchor() + p.max_cycle_s:
+        last_b = self.last_b
+        if (
+            prev is None
+            or t - prev[0] > p.max_gap_s
+            or t > (self.ref_t if last_b is None else last_b) + p.max_cycle_s
+        ):
             self._restart(t, ux, uy)
         rx, ry = self._ref
         dot = ux * rx + uy * ry
@@ -455,38 +472,67 @@ class _ReachDetector(_Detector):
             rx, ry = self._ref
             dot = ux * rx + uy * ry
         pv = (1.0 if dot >= 0.0 else -1.0) * (x * ux + y * uy)
-        if not self._schmitt(t, pv, prev, out):
-            self._restart(t, ux, uy)
-            rx, ry = self._ref
-            dot = ux * rx + uy * ry
-            pv = (1.0 if dot >= 0.0 else -1.0) * (x * ux + y * uy)
-            self._fold(pv, pv)
-        self._prev = (t, pv)
-
-    def _schmitt(
-        self, t: float, pv: float, prev: tuple[float, float] | None, out: list[Boundary]
-    ) -> bool:
-        p = self.p
-        if self._range is None:
-            lo = min(self._run[0], pv)
-            rng = max(self._run[1], pv) - lo
+        # Schmitt trigger on pv: (lo, lo + rng) the previous cycle's range, else the running
+        # one including pv
+        run0, run1 = self._run
+        rg = self._range
+        if rg is None:
+            lo = pv if pv < run0 else run0
+            rng = (pv if pv > run1 else run1) - lo
         else:
-            lo, up = self._range
+            lo, up = rg
             rng = up - lo
         ok = rng >= p.min_range_m
-        if not self._armed:
-            if ok and pv >= lo + p.reach_arm_fraction * rng:
-                self._armed = True
-        else:
+        if self._armed:
             level = lo + p.reach_return_fraction * rng
             if ok and pv <= level:
-                b = t
+                bt = t
                 if prev is not None and prev[1] > level:
                     t0, p0 = prev
-                    b = t0 + (p0 - level) / (p0 - pv) * (t - t0)
-                return self._fire(b, t, pv, out)
-        self._fold(pv, pv)
-        return True
+                    bt = t0 + (p0 - level) / (p0 - pv) * (t - t0)
+                if not self._fire(bt, t, pv, out):
+                    self._restart(t, ux, uy)
+                    rx, ry = self._ref
+                    dot = ux * rx + uy * ry
+                    pv = (1.0 if dot >= 0.0 else -1.0) * (x * ux + y * uy)
+                    self._run = (pv, pv)  # the restart's range is empty: folded with pv
+                self._prev = (t, pv)
+                return
+        elif ok and pv >= lo + p.reach_arm_fraction * rng:
+            self._armed = True
+        self._run = (pv if pv < run0 else run0, pv if pv > run1 else run1)
+        self._prev = (t, pv)
+
+
+def path_and_reach(
+    t: ArrayLike, wrist: ArrayLike, params: CycleParams | None = None
+) -> tuple[list[Boundary], list[Boundary]]:
+    """The ``"path"`` and the ``"reach"`` detectors' boundaries of the same wrist samples in one
+    pass (``t`` (N,) s strictly increasing, ``wrist`` (N,3) m, as :meth:`CycleSegmenter.update`;
+    ``params.mode`` is not used): the same boundaries as a ``"path"`` and a ``"reach"``
+    :class:`CycleSegmenter` each fed the samples, with one moving window for both (the path
+    centre is the window's first two moments, the same sums in the same order)."""
+    p = params if params is not None else CycleParams()
+    tt = np.asarray(t, dtype=np.float64)
+    ww = np.asarray(wrist, dtype=np.float64)
+    n = tt.shape[0]
+    if ww.shape != (n, 3):
+        raise ValueError("wrist must have shape (N, 3) matching t")
+    path, reach = _PathDetector(p), _ReachDetector(p)
+    out_path: list[Boundary] = []
+    out_reach: list[Boundary] = []
+    if n == 0:
+        return out_path, out_reach
+    win = _MovingWindow(p, 5)
+    ox, oy = float(ww[0, 0]), float(ww[0, 1])
+    path.origin = reach.origin = (ox, oy)
+    step_path, step_reach, moments = path.step_at, reach.step_at, win.step_moments
+    for ti, xi, yi in zip(tt.tolist(), ww[:, 0].tolist(), ww[:, 1].tolist(), strict=True):
+        x, y = xi - ox, yi - oy
+        m = moments(ti, x, y)
+        step_path(ti, x, y, m[0], m[1], out_path)
+        step_reach(ti, x, y, m, out_reach)
+    return out_path, out_reach
 
 
 class CycleSegmenter:

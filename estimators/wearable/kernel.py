@@ -40,15 +40,22 @@ def cross(a: Any, b: Any, out: Any) -> None:
 
 
 @jit_inline
-def mm(a: Any, b: Any) -> Any:
-    """``a @ b`` for small matrices, written out (BLAS's call overhead dominates at 3×3)."""
+def mm_into(a: Any, b: Any, out: Any) -> None:
+    """``out += a @ b`` for small matrices, written out (BLAS's call overhead dominates at
+    3×3); ``out`` zeroed by the caller gives the product."""
     n, k, m = a.shape[0], a.shape[1], b.shape[1]
-    out = np.zeros((n, m))
     for i in range(n):
         for t in range(k):
             ait = a[i, t]
             for j in range(m):
                 out[i, j] += ait * b[t, j]
+
+
+@jit_inline
+def mm(a: Any, b: Any) -> Any:
+    """``a @ b`` for small matrices (:func:`mm_into` of a new zeroed array)."""
+    out = np.zeros((a.shape[0], b.shape[1]))
+    mm_into(a, b, out)
     return out
 
 
@@ -213,18 +220,13 @@ def sensors(
     if not jacobian:
         return vals, jac
     # ∂/∂θ_m: everything beyond joint m turns about a_m; joints 3, 4 do not move the upper arm
-    dw_u = np.zeros((15, 3))
-    dw_f = np.zeros((15, 3))
-    dal_u = np.zeros((15, 3))
-    dal_f = np.zeros((15, 3))
-    de = np.zeros((5, 3))
-    ddu = np.zeros((5, 3))
-    ddf = np.zeros((5, 3))
-    dwr = np.zeros((5, 3))
-    ax_wu = np.zeros((5, 3))
-    ax_wf = np.zeros((5, 3))
-    ax_vu = np.zeros((5, 3))
-    ax_vf = np.zeros((5, 3))
+    # (the work arrays are views of two zeroed blocks: one allocation each, not twenty)
+    w15 = np.zeros((8, 15, 3))
+    dw_u, dw_f, dal_u, dal_f = w15[0], w15[1], w15[2], w15[3]
+    g_u, g_f, a_u, a_f = w15[4], w15[5], w15[6], w15[7]
+    w5 = np.zeros((8, 5, 3))
+    de, ddu, ddf, dwr = w5[0], w5[1], w5[2], w5[3]
+    ax_wu, ax_wf, ax_vu, ax_vf = w5[4], w5[5], w5[6], w5[7]
     for m in range(5):
         a0, a1, a2 = a[m, 0], a[m, 1], a[m, 2]
         up = m <= 2
@@ -259,10 +261,8 @@ def sensors(
         if up:
             for dst_, v in ((de, elbow), (ddu, d_u), (ax_wu, w_u), (ax_vu, v_au)):
                 dst_[m, 0], dst_[m, 1], dst_[m, 2] = _cx(a0, a1, a2, v[0], v[1], v[2])
-    g_u = dw_u.copy()
-    g_f = dw_f.copy()
-    a_u = np.zeros((15, 3))
-    a_f = np.zeros((15, 3))
+    g_u[:] = dw_u
+    g_f[:] = dw_f
     if body:
         _dacc(dal_u, dw_u, al_u, w_u, elbow, de, a_f)  # the elbow's acceleration
         _dacc(dal_u, dw_u, al_u, w_u, d_u, ddu, a_u)
@@ -274,10 +274,10 @@ def sensors(
         a_f[10 + m] -= ax_vf[m]
         jac[ELBOW, 10 + m] = de[m]
         jac[WRIST, 10 + m] = de[m] + dwr[m]
-    jac[GYR_U] = mm(g_u, R_SIu)
-    jac[ACC_U] = mm(a_u, R_SIu)
-    jac[GYR_F] = mm(g_f, R_SIf)
-    jac[ACC_F] = mm(a_f, R_SIf)
+    mm_into(g_u, R_SIu, jac[GYR_U])
+    mm_into(a_u, R_SIu, jac[ACC_U])
+    mm_into(g_f, R_SIf, jac[GYR_F])
+    mm_into(a_f, R_SIf, jac[ACC_F])
     return vals, jac
 
 
@@ -547,21 +547,26 @@ def gain_update(x: Any, P: Any, Pxz: Any, S: Any, y: Any) -> Any:
     U = _forward(L, np.ascontiguousarray(Pxz.T))
     v = _forward(L, y.reshape((-1, 1)).copy())[:, 0].copy()
     m, n = U.shape
-    Ut = np.ascontiguousarray(U.T)  # the sums below run along rows: contiguous
-    xn = x.copy()
-    Pn = P.copy()
+    # K y and Uᵀ U with the row r of U in the outer loop: each element still sums
+    # r = 0 … m−1 in order from 0 (the same numbers as a dot per element), but the inner loop
+    # runs along a row of U over independent elements, which the compiler vectorises (a dot
+    # per element is a chain of m dependent adds: it was most of the update's time). The
+    # whole square, not a triangle: the same products in the same order make it exactly
+    # symmetric, as is ½(P + Pᵀ), so each row of P⁺ is written in one contiguous sweep.
+    ky = np.zeros(n)
+    Pn = np.zeros((n, n))  # Uᵀ U, then P⁺
+    for r in range(m):
+        vr = v[r]
+        for i in range(n):
+            uri = U[r, i]
+            ky[i] += uri * vr
+            for j in range(n):
+                Pn[i, j] += uri * U[r, j]
+    xn = np.empty(n)
     for i in range(n):
-        acc = 0.0
-        for r in range(m):
-            acc += Ut[i, r] * v[r]
-        xn[i] += acc
-        for j in range(i, n):
-            acc = 0.0
-            for r in range(m):
-                acc += Ut[i, r] * Ut[j, r]
-            val = 0.5 * (P[i, j] + P[j, i]) - acc
-            Pn[i, j] = val
-            Pn[j, i] = val
+        xn[i] = x[i] + ky[i]
+        for j in range(n):
+            Pn[i, j] = 0.5 * (P[i, j] + P[j, i]) - Pn[i, j]
     nis = 0.0
     for r in range(m):
         nis += v[r] * v[r]

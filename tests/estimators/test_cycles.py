@@ -17,7 +17,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from estimators.cycles import Boundary, CycleParams, CycleSegmenter, _MovingWindow
+from estimators.cycles import (
+    Boundary,
+    CycleParams,
+    CycleSegmenter,
+    _MovingWindow,
+    path_and_reach,
+)
 
 FS = 25.0
 
@@ -472,3 +478,14 @@ def test_boundary_is_a_float_with_extras():
 def test_invalid_params_are_rejected(kw):
     with pytest.raises(ValueError):
         CycleParams(**kw)
+
+
+@pytest.mark.parametrize("session", ["loop", "reach"])
+def test_path_and_reach_in_one_pass_equals_each_detector_alone(session):
+    t, wrist = (_LOOP if session == "loop" else _REACH)[:2]
+    path, reach = path_and_reach(t, wrist)
+    alone = [CycleSegmenter(CycleParams(mode=m)).update(t, wrist) for m in ("path", "reach")]
+    assert len(alone[0] if session == "loop" else alone[1]) >= 6
+    assert key(path) == key(alone[0])
+    assert key(reach) == key(alone[1])
+    assert path_and_reach(t[:0], wrist[:0]) == ([], [])
