@@ -252,6 +252,28 @@ def thread_cpu(pid: int) -> dict[int, tuple[str, float]]:
     return out
 
 
+def worker_threads(pid: int, before: dict[int, tuple[str, float]], wall: float) -> dict[str, float]:
+    """A worker's CPU (% of a core) since ``before``: its event loop (the main thread),
+    Zenoh's threads (receiving ``rx-*``, sending ``tx-*``, the rest), and its other Python
+    threads (the receiving thread, the lease thread, the database writer: Python does not
+    name them for the OS)."""
+    out = {"loop": 0.0, "zenoh_rx": 0.0, "zenoh_tx": 0.0, "zenoh_other": 0.0, "python": 0.0}
+    for tid, (name, cpu) in thread_cpu(pid).items():
+        used = 100 * (cpu - before.get(tid, (name, 0.0))[1]) / wall
+        if tid == pid:
+            part = "loop"
+        elif name.startswith("rx-"):
+            part = "zenoh_rx"
+        elif name.startswith("tx-"):
+            part = "zenoh_tx"
+        elif name.startswith(("app-", "net-", "acc-")):
+            part = "zenoh_other"
+        else:
+            part = "python"
+        out[part] += used
+    return {k: round(v, 1) for k, v in out.items()}
+
+
 def latencies(
     sent: list[list[tuple[float, float]]],
     recv: dict[str, list[tuple[float, float]]],
@@ -452,6 +474,7 @@ def run(
         cpu0, rss0 = proc_sample(service.pid)
         threads0 = thread_cpu(service.pid)
         pids = tree(service.pid) + [p.pid for p in remote]
+        wthreads0 = {p: thread_cpu(p) for p in pids if p != service.pid}
         tree0 = tree_cpu(pids)
         say(f"idle service: {rss0 / 2**20:.0f} MiB; streaming {duration:.0f} s")
         sub_cpu0 = proc_sample(sub.pid)[0]
@@ -470,6 +493,7 @@ def run(
         sub_cpu = proc_sample(sub.pid)[0] - sub_cpu0
         threads1 = thread_cpu(service.pid)
         tree1 = tree_cpu(pids)
+        wthreads = {p: worker_threads(p, t0, wall) for p, t0 in wthreads0.items()}
         by_proc = {p: tree1[p] - tree0.get(p, 0.0) for p in tree1 if p in tree0}
         worker_cpu = sum(c for p, c in by_proc.items() if p != service.pid)
         # the event loop's thread (the pipelines, ingest, outputs): the one that saturates
@@ -568,6 +592,7 @@ def run(
             if len(pids) > 1
             else None,
             "worker_cpu_ms_per_device_s_by_worker": per_worker,
+            "worker_threads_cpu_percent": {f"worker {p}": v for p, v in wthreads.items()},
             "devices_by_worker": {
                 f"worker {p}": round(k / total_rows * n, 1) for p, k in rows_by_pid.items()
             },
