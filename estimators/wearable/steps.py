@@ -447,3 +447,68 @@ def feed(
     return track(
         x, P, mon, nis_buf, tp, counts, pt, z, have, avail, flags, fix, ia, fa, x0, P0, mis, basis
     )
+
+
+@jit
+def widen(out: Any, terms: Any, doubt: Any, vertical: float, rotation: float, tau: float) -> None:
+    """The reported σ of each angle (rows 12–16 of ``out`` (19, N), degrees, in place): the
+    filter's σ with ``terms`` (3, 5) squared: the systematic floor, the share of the angle
+    (rows 1–5), the doubt after a large shoulder rotation; and pronation's with a vertical
+    forearm, ``vertical`` deg × the squared vertical component of wrist − elbow (0 if unknown).
+    The doubt (:func:`doubt_held`: ``rotation`` deg, ``tau`` s, its state ``doubt``) of the
+    shoulder rotation (row 3) at the rows' times (row 0). NaN (no angle) stays NaN.
+    One message's rows per call: per row, the arithmetic of the array form it replaced, in
+    the same order (the same numbers bit for bit)."""
+    n = out.shape[1]
+    use_doubt = False
+    use_any = vertical != 0.0
+    for j in range(5):
+        use_doubt = use_doubt or terms[2, j] != 0.0
+        use_any = use_any or terms[0, j] != 0.0 or terms[1, j] != 0.0 or terms[2, j] != 0.0
+    if not use_any or n == 0:
+        return
+    h = np.zeros(n)
+    if use_doubt:
+        doubt_held(out[0], out[3], doubt, rotation, tau, h)
+    for k in range(n):
+        hh = h[k] * h[k]
+        c2 = 0.0
+        if vertical != 0.0:
+            d0 = out[9, k] - out[6, k]
+            d1 = out[10, k] - out[7, k]
+            d2 = out[11, k] - out[8, k]
+            d0 *= d0
+            d1 *= d1
+            d2 *= d2
+            s = d0 + d1 + d2
+            q = d2 / (s if (s != s or s > 1e-12) else 1e-12)  # np.maximum keeps NaN
+            c2 = q if q > 0.0 else 0.0  # np.fmax: NaN -> 0
+        for j in range(5):
+            a = out[1 + j, k]
+            e = terms[0, j] + terms[1, j] * (a * a)
+            if use_doubt:
+                e += terms[2, j] * hh
+            if j == 4 and vertical != 0.0:
+                w = vertical * c2
+                e += w * w
+            sd = out[12 + j, k]
+            out[12 + j, k] = math.sqrt(sd * sd + e)
+
+
+@jit
+def doubt_held(t: Any, rotation_deg: Any, doubt: Any, rotation: float, tau: float, h: Any) -> None:
+    """The excess ``g`` = max(|θ2| − ``rotation``, 0) of the shoulder rotation ``rotation_deg``
+    (N,) deg held at its peak and fading as exp(−Δt/``tau``) in sample time ``t`` (N,) s, into
+    ``h`` (N,) deg. Kept as a running maximum of log g + (t − t_first)/τ from the first row
+    ever (``doubt`` = [t_first, peak], updated), so any grouping of the rows gives the same
+    numbers."""
+    if t.shape[0] and math.isnan(doubt[0]):
+        doubt[0] = t[0]
+    for k in range(t.shape[0]):
+        g = abs(rotation_deg[k]) - rotation
+        x = (t[k] - doubt[0]) / tau
+        # no excess (or no angle: NaN, as np.fmax): g of 1e-300, which exp(log) gives back
+        lg = math.log(g if g > 1e-300 else 1e-300) + x
+        if lg > doubt[1]:
+            doubt[1] = lg
+        h[k] = math.exp(doubt[1] - x)

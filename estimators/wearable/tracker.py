@@ -80,11 +80,11 @@ class TrackerState:
     bufs: list[F64] = field(default_factory=lambda: [np.empty((64, 7)) for _ in range(3)])
     ptr: I64 = field(default_factory=lambda: np.zeros(6, dtype=np.intp))
     rejected: Counter[str] = field(default_factory=Counter)
-    # the σ's doubt after a large shoulder rotation (:func:`_doubt`): the first row's time and
-    # the running peak of log(g) + (t − t_first)/τ
+    # the σ's doubt after a large shoulder rotation (:func:`.steps.widen`): the first row's
+    # time and the running peak of log(g) + (t − t_first)/τ
     doubt: F64 = field(default_factory=lambda: np.array([math.nan, -math.inf]))
-    # the σ's terms: floor², share², doubt², each (5, 1) (:func:`_widen`)
-    widen: F64 = field(default_factory=lambda: np.zeros((3, 5, 1)))
+    # the σ's terms: floor², share², doubt², (3, 5) (:func:`.steps.widen`)
+    widen: F64 = field(default_factory=lambda: np.zeros((3, 5)))
 
     @property
     def steps(self) -> int:
@@ -128,7 +128,7 @@ def initial_state(params: WearableParams) -> TrackerState:
     mon, nis_buf, counts = steps.new_state(params.nis_window)
     state = TrackerState(model, tp, have, x0, P0, x0, P0, mon, nis_buf, counts)
     terms = (params.sigma_floor_deg, params.sigma_share, params.sigma_doubt)
-    state.widen = np.square(np.array(terms, dtype=np.float64))[:, :, None]
+    state.widen = np.square(np.array(terms, dtype=np.float64)).reshape(3, 5)
     return state
 
 
@@ -240,41 +240,16 @@ def _run(
 
 
 def _widen(params: WearableParams, state: TrackerState, out: F64) -> None:
-    """The reported σ of each angle (rows 12–16 of ``out``, degrees, in place): the filter's
-    σ with the systematic floor, the share of the angle, the doubt after a large shoulder
-    rotation and pronation's with a vertical forearm (:class:`WearableParams`
-    ``sigma_floor_deg``, ``sigma_share``, ``sigma_doubt``, ``sigma_pronation_vertical_deg``);
-    NaN (an angle not available) stays NaN."""
-    floor2, share2, doubt2 = state.widen  # (5, 1) each, squared
-    vertical = params.sigma_pronation_vertical_deg
-    if not (floor2.any() or share2.any() or doubt2.any() or vertical) or not out.shape[1]:
-        return
-    extra = floor2 + share2 * out[1:6] ** 2
-    if doubt2.any():
-        h = _doubt(params, state, out[0], out[3])
-        extra += doubt2 * (h * h)
-    if vertical:  # the forearm's direction's vertical component, squared (0 if unknown)
-        d = out[9:12] - out[6:9]
-        d *= d
-        c2 = np.fmax(d[2] / np.maximum(d[0] + d[1] + d[2], 1e-12), 0.0)
-        extra[4] += (vertical * c2) ** 2
-    out[12:17] = np.sqrt(out[12:17] ** 2 + extra)
-
-
-def _doubt(params: WearableParams, state: TrackerState, t: F64, rotation_deg: F64) -> F64:
-    """The excess ``g`` = max(|θ2| − ``doubt_rotation_deg``, 0) of the shoulder rotation
-    (deg) held at its peak and fading as exp(−Δt/``doubt_tau_s``) in sample time, per row
-    (N,) deg. Kept as a running maximum of log g + (t − t_first)/τ from the first row ever
-    (``state.doubt``), so that any grouping of the rows gives the same numbers."""
-    if math.isnan(state.doubt[0]):
-        state.doubt[0] = t[0]
-    g = np.abs(rotation_deg) - params.doubt_rotation_deg
-    x = (t - state.doubt[0]) / params.doubt_tau_s
-    # no excess (or no angle): g of 1e-300, which exp(log) gives back (no log 0 warning)
-    peak = np.maximum.accumulate(np.log(np.fmax(g, 1e-300)) + x)
-    peak = np.maximum(peak, state.doubt[1])
-    state.doubt[1] = peak[-1]
-    return np.asarray(np.exp(peak - x), dtype=np.float64)
+    """The reported σ of each angle (rows 12–16 of ``out``, degrees, in place), compiled
+    (:func:`.steps.widen`): the filter's σ with the systematic floor, the share of the angle,
+    the doubt after a large shoulder rotation and pronation's with a vertical forearm
+    (:class:`WearableParams` ``sigma_floor_deg``, ``sigma_share``, ``sigma_doubt``,
+    ``doubt_rotation_deg``, ``doubt_tau_s``, ``sigma_pronation_vertical_deg``); NaN (an angle
+    not available) stays NaN."""
+    steps.widen(
+        out, state.widen, state.doubt, params.sigma_pronation_vertical_deg,
+        params.doubt_rotation_deg, params.doubt_tau_s,
+    )  # fmt: skip
 
 
 _ROW_KEYS = (*COLUMNS, *STD_COLUMNS, "flags")

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from estimators.wearable import dh, tracker
+from estimators.wearable import dh, steps, tracker
 from estimators.wearable.model import Measurement, Model
 from estimators.wearable.params import WearableParams, WearableParamsError
 from simulator.wearable_arm import Mount, imu_readings, joint_positions
@@ -521,14 +521,20 @@ def test_doubt_after_a_large_rotation_fades_and_ignores_grouping():
     t = 5.0 + np.arange(300) / 100.0
     rot = np.where(t < 6.0, 10.0 * (t - 5.0) * 6.0, np.nan)  # up to 60° by 6 s, then gone
     rot[200:] = 0.0
-    whole = tracker._doubt(p, tracker.initial_state(p), t, rot)
+
+    def doubt(state: tracker.TrackerState, t: np.ndarray, rot: np.ndarray) -> np.ndarray:
+        h = np.empty(len(t))
+        steps.doubt_held(t, rot, state.doubt, p.doubt_rotation_deg, p.doubt_tau_s, h)
+        return h
+
+    whole = doubt(tracker.initial_state(p), t, rot)
     want = np.maximum.accumulate(
         np.maximum(np.nan_to_num(np.abs(rot)) - 30.0, 0.0) * np.exp(t / 40.0)
     )
     np.testing.assert_allclose(whole, want * np.exp(-t / 40.0), rtol=1e-12, atol=1e-250)
     assert whole[50] < 1e-250 and whole[-1] == pytest.approx(29.4 * np.exp(-2.0 / 40.0), rel=1e-9)
     state = tracker.initial_state(p)
-    parts = [tracker._doubt(p, state, t[i : i + 7], rot[i : i + 7]) for i in range(0, 300, 7)]
+    parts = [doubt(state, t[i : i + 7], rot[i : i + 7]) for i in range(0, 300, 7)]
     np.testing.assert_array_equal(np.concatenate(parts), whole)
 
 
@@ -551,3 +557,35 @@ def test_reported_sigma_widening_keeps_missing_angles_missing():
     assert np.isnan(out[15:17, 1]).all() and np.isfinite(out[12:15, 1]).all()
     with pytest.raises(WearableParamsError):
         WearableParams(sigma_share=(0.1, -0.1, 0.0, 0.0, 0.0))
+
+
+def test_compiled_widening_matches_the_array_form_bit_for_bit():
+    """The compiled σ widening (per row, any grouping) gives exactly the numbers of its
+    array form (the previous numpy code, written out here), NaN angles included."""
+    p = WearableParams()
+    rng = np.random.default_rng(3)
+    n = 400
+    out = rng.normal(0.0, 40.0, (19, n))
+    out[0] = 1.0 + np.arange(n) / 100.0
+    out[6:12] = rng.normal(0.0, 0.3, (6, n))
+    out[12:17] = np.abs(out[12:17]) / 10.0
+    out[[3, 4, 5, 15, 16, 9, 10, 11], rng.integers(0, n, 8)] = np.nan
+    floor2, share2, doubt2 = (
+        np.square(np.array(v))[:, None] for v in (p.sigma_floor_deg, p.sigma_share, p.sigma_doubt)
+    )
+    g = np.abs(out[3]) - p.doubt_rotation_deg
+    x = (out[0] - out[0, 0]) / p.doubt_tau_s
+    h = np.exp(np.maximum.accumulate(np.log(np.fmax(g, 1e-300)) + x) - x)
+    extra = floor2 + share2 * out[1:6] ** 2 + doubt2 * (h * h)
+    d = (out[9:12] - out[6:9]) ** 2
+    c2 = np.fmax(d[2] / np.maximum(d[0] + d[1] + d[2], 1e-12), 0.0)
+    extra[4] += (p.sigma_pronation_vertical_deg * c2) ** 2
+    want = np.sqrt(out[12:17] ** 2 + extra)
+    state = tracker.initial_state(p)
+    got = out.copy()
+    for i in range(0, n, 13):
+        part = got[:, i : i + 13].copy()
+        tracker._widen(p, state, part)
+        got[:, i : i + 13] = part
+    np.testing.assert_array_equal(got[12:17], want)
+    assert np.isnan(want).any() and (h > 1.0).any()  # missing angles and the doubt in play
