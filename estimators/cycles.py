@@ -121,64 +121,25 @@ class _MovingWindow:
     none). For each sample the mean of ``vals`` over the moving samples with
     ``t >= t[i] - centre_window_s`` (including ``i``) comes from exclusive prefix sums
     accumulated sequentially since the start, so the result does not depend on chunking.
-    One sample at a time, helpers written out (this runs for every live sample):
-    :meth:`step_xy` for ``vals = (x, y)``, :meth:`step_moments` for ``(x, y, x², y², x y)``;
-    the history rows are float tuples in deques.
+    One sample at a time (:meth:`step`, written out: this runs for every live sample); the
+    history rows are float tuples in deques.
     """
 
-    def __init__(self, p: CycleParams, width: int) -> None:
+    def __init__(self, p: CycleParams) -> None:
         self._w = p.centre_window_s
         self._lag = p.still_window_s
         self._r2 = p.still_radius_m * p.still_radius_m
-        self._width = width
-        self._total = [0.0] * (width + 1)
+        self._total = [0.0] * 6  # moving count, then the sums of x, y, x², y², x y
         # the last position at or before t - still_window_s (None: none yet), the later
         # ones (t, x, y), and the exclusive prefix sums of [moving, moving * vals] (t first)
         self._anchor: tuple[float, ...] | None = None
         self._pos_q: deque[tuple[float, ...]] = deque()
         self._h_q: deque[tuple[float, ...]] = deque()
 
-    def step_xy(self, t: float, x: float, y: float) -> tuple[float, float]:
-        """One sample with ``vals = (x, y)`` (the path detector's centre): the mean x and y."""
-        pos = self._pos_q
-        pos.append((t, x, y))
-        lim = t - self._lag
-        a: tuple[float, ...] | None
-        if pos[0][0] <= lim:
-            a = pos.popleft()
-            while pos and pos[0][0] <= lim:
-                a = pos.popleft()
-            self._anchor = a
-        else:
-            a = self._anchor
-        m = 0.0
-        if a is not None:
-            dx = x - a[1]
-            dy = y - a[2]
-            if dx * dx + dy * dy > self._r2:
-                m = 1.0
-        hist = self._h_q
-        c0, s0, s1 = self._total
-        hist.append((t, c0, s0, s1))
-        lim = t - self._w
-        pk = hist[0]
-        while pk[0] < lim:
-            hist.popleft()
-            pk = hist[0]
-        c0 += m
-        s0 += x * m
-        s1 += y * m
-        self._total = [c0, s0, s1]
-        count = c0 - pk[1]
-        if count > 0.0:
-            return (s0 - pk[2]) / count, (s1 - pk[3]) / count
-        return math.nan, math.nan
-
-    def step_moments(
-        self, t: float, x: float, y: float
-    ) -> tuple[float, float, float, float, float, float]:
-        """One sample with ``vals = (x, y, x², y², x y)`` (the reach detector's moments): the
-        five means and the count (the means NaN if it is 0)."""
+    def step(self, t: float, x: float, y: float) -> tuple[float, float, float, float, float, float]:
+        """One sample: the five means of ``vals = (x, y, x², y², x y)`` (the path detector's
+        centre is the first two, the reach detector's axis all five) and the count (the means
+        NaN if it is 0)."""
         pos = self._pos_q
         pos.append((t, x, y))
         lim = t - self._lag
@@ -295,7 +256,7 @@ class _PathDetector(_Detector):
 
     def __init__(self, p: CycleParams) -> None:
         super().__init__(p)
-        self._win = _MovingWindow(p, 2)
+        self._win = _MovingWindow(p)
         self._r2min = p.min_radius_m * p.min_radius_m
         self._prev: tuple[float, float, float] | None = None  # last usable (t, phi, Phi)
         self._ref_phi = 0.0  # unwrapped phase at the (re)start
@@ -321,8 +282,8 @@ class _PathDetector(_Detector):
             self._restart(t1, p1)
 
     def step(self, t: float, x: float, y: float, out: list[Boundary]) -> None:
-        cx, cy = self._win.step_xy(t, x, y)
-        self.step_at(t, x, y, cx, cy, out)
+        m = self._win.step(t, x, y)
+        self.step_at(t, x, y, m[0], m[1], out)
 
     def step_at(
         self, t: float, x: float, y: float, cx: float, cy: float, out: list[Boundary]
@@ -395,7 +356,7 @@ class _ReachDetector(_Detector):
 
     def __init__(self, p: CycleParams) -> None:
         super().__init__(p)
-        self._win = _MovingWindow(p, 5)
+        self._win = _MovingWindow(p)
         self._prev: tuple[float, float] | None = None  # last usable (t, p)
         self._ref = (0.0, 1.0)
         self._armed = False
@@ -427,7 +388,7 @@ class _ReachDetector(_Detector):
     # -- per sample ---------------------------------------------------------------------------
 
     def step(self, t: float, x: float, y: float, out: list[Boundary]) -> None:
-        self.step_at(t, x, y, self._win.step_moments(t, x, y), out)
+        self.step_at(t, x, y, self._win.step(t, x, y), out)
 
     def step_at(
         self,
@@ -437,7 +398,7 @@ class _ReachDetector(_Detector):
         moments: tuple[float, float, float, float, float, float],
         out: list[Boundary],
     ) -> None:
-        """:meth:`step` with the moving window's moments (:meth:`_MovingWindow.step_moments`)
+        """:meth:`step` with the moving window's moments (:meth:`_MovingWindow.step`)
         given."""
         p = self.p
         mx, my, exx, eyy, exy, count = moments
@@ -523,10 +484,10 @@ def path_and_reach(
     out_reach: list[Boundary] = []
     if n == 0:
         return out_path, out_reach
-    win = _MovingWindow(p, 5)
+    win = _MovingWindow(p)
     ox, oy = float(ww[0, 0]), float(ww[0, 1])
     path.origin = reach.origin = (ox, oy)
-    step_path, step_reach, moments = path.step_at, reach.step_at, win.step_moments
+    step_path, step_reach, moments = path.step_at, reach.step_at, win.step
     for ti, xi, yi in zip(tt.tolist(), ww[:, 0].tolist(), ww[:, 1].tolist(), strict=True):
         x, y = xi - ox, yi - oy
         m = moments(ti, x, y)

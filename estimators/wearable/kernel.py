@@ -698,10 +698,18 @@ def _unpack(ia: Any) -> Any:
     return theta_idx, i_dd, i_d, i_th, src, dst, gm, bias, body_idx
 
 
+@jit_inline
+def geometry(fa: Any) -> Any:
+    """The segments and IMU mountings packed by :func:`pack`: ``lu``, ``lf`` (m), ``r_u`` (3,)
+    m, ``R_UI`` (3, 3), ``r_f`` (3,) m, ``R_FI`` (3, 3)."""
+    return fa[0], fa[1], fa[4:7], fa[7:16].reshape((3, 3)), fa[16:19], fa[19:28].reshape((3, 3))
+
+
 @jit
 def ekf_step_packed(x: Any, P: Any, ts: float, z: Any, have: Any, ia: Any, fa: Any) -> Any:
     """:func:`ekf_step` with the model's constants packed by :func:`pack`."""
     theta_idx, i_dd, i_d, i_th, src, dst, gm, bias, body_idx = _unpack(ia)
+    lu, lf, r_u, R_UI, r_f, R_FI = geometry(fa)
     n = ia[_IA_N]
     return ekf_step(
         x,
@@ -723,12 +731,12 @@ def ekf_step_packed(x: Any, P: Any, ts: float, z: Any, have: Any, ia: Any, fa: A
         dst,
         bias,
         body_idx,
-        fa[0],
-        fa[1],
-        fa[4:7],
-        fa[7:16].reshape((3, 3)),
-        fa[16:19],
-        fa[19:28].reshape((3, 3)),
+        lu,
+        lf,
+        r_u,
+        R_UI,
+        r_f,
+        R_FI,
         ia[_IA_BODY] != 0,
     )
 

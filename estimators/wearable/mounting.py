@@ -82,6 +82,7 @@ def misalign(
 def measure(x: Any, have: Any, ia: Any, fa: Any, mis: Any, basis: Any, jacobian: bool) -> Any:
     """:func:`kernel.measure` with the model's packed constants, then :func:`misalign`."""
     theta_idx, _, _, _, src, dst, _, bias, body_idx = kernel._unpack(ia)
+    lu, lf, r_u, R_UI, r_f, R_FI = kernel.geometry(fa)
     h, H = kernel.measure(
         x,
         have,
@@ -90,12 +91,12 @@ def measure(x: Any, have: Any, ia: Any, fa: Any, mis: Any, basis: Any, jacobian:
         dst,
         bias,
         body_idx,
-        fa[0],
-        fa[1],
-        fa[4:7],
-        fa[7:16].reshape((3, 3)),
-        fa[16:19],
-        fa[19:28].reshape((3, 3)),
+        lu,
+        lf,
+        r_u,
+        R_UI,
+        r_f,
+        R_FI,
         ia[kernel._IA_BODY] != 0,
         jacobian,
     )

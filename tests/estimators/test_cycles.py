@@ -445,12 +445,9 @@ def test_moving_window_means_by_definition(dts, width, seed):
         j = np.flatnonzero(t <= t[i] - p.still_window_s)
         if len(j):
             moving[i] = np.sum((xy[i] - xy[j[-1]]) ** 2) > p.still_radius_m**2
-    win = _MovingWindow(p, width)
+    win = _MovingWindow(p)
     for i in range(t.size):
-        if width == 2:
-            got = np.array(win.step_xy(float(t[i]), float(x[i]), float(y[i])))
-        else:
-            got = np.array(win.step_moments(float(t[i]), float(x[i]), float(y[i]))[:5])
+        got = np.array(win.step(float(t[i]), float(x[i]), float(y[i]))[:width])
         k = (t >= t[i] - p.centre_window_s) & (np.arange(t.size) <= i) & moving
         want = vals[k].mean(axis=0) if k.any() else np.full(width, np.nan)
         np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12)
