@@ -24,7 +24,12 @@ from typing import Any
 from estimators import jit
 
 # the modules holding the kernels declared with ``aot``
-KERNEL_MODULES = ("estimators.filters", "estimators.imu_stage", "estimators.peaks")
+KERNEL_MODULES = (
+    "estimators.filters",
+    "estimators.imu_stage",
+    "estimators.peaks",
+    "estimators.rows",
+)
 PACKAGE_DIR = Path(__file__).resolve().parent
 
 

@@ -83,8 +83,7 @@ class RowBuffer:
 
 class RowQueue:
     """FIFO of float rows that arrive one at a time (tuples, the live case) or in blocks
-    ((n, width) arrays, a batch), taken out in order as float rows or as one array, so
-    neither form is converted to the other unless a consumer asks for it."""
+    ((n, width) arrays, a batch), taken out in order as one array."""
 
     def __init__(self, width: int) -> None:
         self.width = width
@@ -97,32 +96,6 @@ class RowQueue:
     def append(self, block: FloatArray) -> None:
         if len(block):
             self._items.append(block)
-
-    def take_rows(self, n: int) -> list[Sequence[float]]:
-        """The ``n`` oldest rows as float sequences, removed."""
-        out: list[Sequence[float]] = []
-        items = self._items
-        while len(out) < n:
-            item = items[0]
-            if isinstance(item, tuple):
-                out.append(item)
-                items.popleft()
-                continue
-            k = min(n - len(out), len(item) - self._off)
-            out += item[self._off : self._off + k].tolist()
-            self._off += k
-            if self._off == len(item):
-                items.popleft()
-                self._off = 0
-        return out
-
-    def take_row(self) -> Sequence[float]:
-        """The oldest row, removed (:meth:`take_rows` of one, for the live case)."""
-        item = self._items[0]
-        if isinstance(item, tuple):
-            self._items.popleft()
-            return item
-        return self.take_rows(1)[0]
 
     def take_block(self, n: int) -> FloatArray:
         """The ``n`` oldest rows as one (n, width) array, removed."""

@@ -83,6 +83,10 @@ class HeadingStage:
         i = bisect.bisect_right(self._snap_t, t) - 1
         return self._snaps[i] if i >= 0 else NAN8
 
+    def snapshots(self) -> list[tuple[float, ...]]:
+        """The snapshots kept, oldest first (each as :meth:`snapshot` gives it); read only."""
+        return self._snaps
+
     def trim(self, t_keep: float) -> None:
         """Forget snapshots no row at or after ``t_keep`` can use."""
         cut = bisect.bisect_right(self._snap_t, t_keep) - 2

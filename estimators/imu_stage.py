@@ -12,7 +12,6 @@ from vqf import VQF
 
 from estimators import kinematics as kin
 from estimators import quaternion as quat
-from estimators import rows
 from estimators.buffers import RowBuffer
 from estimators.filters import LowPass
 from estimators.jit import aot
@@ -22,10 +21,7 @@ from estimators.params import PipelineParams
 Array: TypeAlias = NDArray[np.float64]
 Idx: TypeAlias = NDArray[Any]  # integer and boolean arrays
 EX = np.array([1.0, 0.0, 0.0])
-NAN4 = (math.nan,) * 4
-
-_FEW_SAMPLES = 8  # up to this many samples per piece, per-sample work in Python floats
-_MIRROR = _FEW_SAMPLES  # a larger piece leaves this many of its newest samples in the mirror
+_NO_V = np.zeros((0, 3))  # the improved method has no eq. 1–2 acceleration
 
 
 @aot("f8[:, ::1](f8[:, :], i8[:], f8[:, :])")
@@ -42,18 +38,73 @@ def _weighted_sums(w: Any, start: Any, x: Any) -> Any:  # pragma: no cover - com
     return out
 
 
+@aot(
+    "void(f8[:, :], f8[:], f8, f8[:, :], f8[:, :], f8[:, :], f8[:, :], f8[:, :], f8[::1], i8[::1])"
+)
+def _store(  # pragma: no cover - compiled
+    rows: Any,
+    t: Any,
+    seg: float,
+    q_ia: Any,
+    q_is: Any,
+    acc: Any,
+    v: Any,
+    w: Any,
+    prev: Any,
+    col: Any,
+) -> None:
+    """Write a piece of n samples into the buffer's new ``rows`` (n, ·) at the columns
+    ``col`` (:data:`ImuStage.COLUMNS`): time ``t`` (s), segment id, ``q_IA``, ``q_IS`` (n, 4),
+    specific force (n, 3), the paper method's acceleration ``v`` (n, 3; (0, 3): zero), ``ω_A``
+    (n, 3) and its backward difference ``dω_A = (ω_j − ω_{j−1}) / (t_j − t_{j−1})``, the
+    sample before the first being ``prev`` (t, ω_A), which becomes the piece's last. t NaN:
+    the segment's first sample (dω_A 0, from ω_A against itself 1 s earlier)."""
+    ct, cseg, cq, cqs, cacc, cv, cw, cdw = (
+        col[0],
+        col[1],
+        col[2],
+        col[3],
+        col[4],
+        col[5],
+        col[6],
+        col[7],
+    )
+    has_v = v.shape[0] > 0
+    tp, p0, p1, p2 = prev[0], prev[1], prev[2], prev[3]
+    if tp != tp:
+        tp, p0, p1, p2 = t[0] - 1.0, w[0, 0], w[0, 1], w[0, 2]
+    for i in range(t.shape[0]):
+        ti = t[i]
+        rows[i, ct] = ti
+        rows[i, cseg] = seg
+        for c in range(4):
+            rows[i, cq + c] = q_ia[i, c]
+            rows[i, cqs + c] = q_is[i, c]
+        w0, w1, w2 = w[i, 0], w[i, 1], w[i, 2]
+        for c in range(3):
+            rows[i, cacc + c] = acc[i, c]
+            rows[i, cv + c] = v[i, c] if has_v else 0.0
+        rows[i, cw], rows[i, cw + 1], rows[i, cw + 2] = w0, w1, w2
+        dt = ti - tp
+        rows[i, cdw], rows[i, cdw + 1], rows[i, cdw + 2] = (
+            (w0 - p0) / dt,
+            (w1 - p1) / dt,
+            (w2 - p2) / dt,
+        )
+        tp, p0, p1, p2 = ti, w0, w1, w2
+    prev[0], prev[1], prev[2], prev[3] = tp, p0, p1, p2
+
+
 class ImuStage:
     """6D orientation and elbow-acceleration terms at the IMU rate (frame I).
 
-    Two stores of the same samples: the numpy buffer for the vectorised consumers (grid,
-    batch rows), filled from the pending pieces only when one of them asks (a live message
-    then costs no buffer copy), and a mirror of the newest samples in Python floats for
-    single rows (:meth:`at`), which index it without any numpy call."""
+    The samples are kept in a numpy buffer, filled from the pending pieces when a consumer
+    (the grid, the rows) asks: each piece is copied once, whatever the polls."""
 
     # buffer columns: t, segment id, q_IA (4), the gyro in frame A and its backward
     # difference (3 + 3: predict q_IA past the newest sample), the 6D filter's sensor
     # orientation q_IS (4), specific force in the sensor frame (3), paper method's eq. 1–2
-    # acceleration (3). SEG to DW, together, are what a row looks up (:meth:`_list_rows`).
+    # acceleration (3). T to DW are what a row looks up (:meth:`lookup`).
     T = 0
     SEG = 1
     Q = 2  # 4
@@ -63,6 +114,8 @@ class ImuStage:
     ACC = 16  # 3
     V = 19  # 3
     WIDTH = 22
+    LOOKUP = np.array([T, SEG, Q, W, DW], dtype=np.int64)  # :func:`estimators.rows.compute`
+    COLUMNS = np.array([T, SEG, Q, QS, ACC, V, W, DW], dtype=np.int64)  # :func:`_store`
 
     def __init__(self, p: PipelineParams) -> None:
         self.p = p
@@ -81,40 +134,17 @@ class ImuStage:
         self.gyro_lp: LowPass | None = None
         self.gyro_zi: Array | None = None
         self.gyro_prev: Array | None = None
-        # last (t, ω_A) of this segment (a tuple of floats: the cyclic collector stops
-        # tracking it, also where _p_prev holds it)
-        self.w_prev: tuple[float, tuple[float, ...]] | None = None
+        # the last sample's (t, ω_A) in this segment, for dω_A (t NaN: none yet)
+        self.w_prev = np.full(4, math.nan)
         self.buf = RowBuffer(self.WIDTH)
-        self.tl: list[float] = []  # every sample's time, buffered or pending (bisect)
-        # pieces not yet in buf, one list per column group (per-piece tuples would stay
-        # tracked by the cyclic collector: they hold arrays)
-        self._p_q: list[Array] = []  # q_IA
-        self._p_qs: list[Array] = []  # q_IS
-        self._p_acc: list[Array] = []
-        self._p_v: list[Array | None] = []
-        self._p_w: list[Array] = []  # ω_A
-        self._p_seg: list[float] = []
-        self._p_len: list[int] = []
-        # (pending row, t, ω_A) where dω's previous sample is not the row before: the first
-        # pending piece and every segment start
-        self._p_prev: list[tuple[int, float, tuple[float, ...]]] = []
-        # the newest samples in floats: q_IA (4 per sample), ω_A (3), segment id; dω_A is
-        # worked out when a prediction asks for it (_dw), from these and the (t, ω_A,
-        # segment) of the sample before the first (None: there is none)
-        self._mq: list[float] = []
-        self._mw: list[float] = []
-        self._mseg: list[float] = []
-        self._mprev: tuple[float, tuple[float, ...], float] | None = None
-        self._rows_list: list[list[float]] | None = None  # the buffer as floats, when asked
+        self.tl: list[float] = []  # every sample's time (bisect)
 
     @property
     def t(self) -> Array:
-        self._flush()
         return self.buf.col(self.T)
 
     @property
     def segid(self) -> Array:
-        self._flush()
         return self.buf.col(self.SEG)
 
     def _reset(self) -> None:
@@ -122,7 +152,7 @@ class ImuStage:
         self.vqf = VQF(self.ts, tauAcc=self.p.vqf_tau_acc_s)
         self.gyro_zi = None
         self.gyro_prev = None
-        self.w_prev = None
+        self.w_prev = np.full(4, math.nan)
 
     def process(
         self, t: Array, gyr: Array, acc: Array, q: Quality, tl: list[float] | None = None
@@ -214,148 +244,36 @@ class ImuStage:
             self.gyro_prev = gf[-1].copy()
             v = kin.inertial_acceleration(q_is, kin.joint_specific_force(acc, gyr, gdot, self.r))
         w_a = gyr if self.identity_mount else quat.rotate(self.unmount, gyr)
-        seg = float(self.seg)
-        # angular acceleration: backward difference, 0 at a segment's first sample
-        fresh = self.w_prev is None
-        if self.w_prev is None:
-            t0, w0 = tl[0] - 1.0, tuple(w_a[0].tolist())
-        else:
-            t0, w0 = self.w_prev
-        if fresh or not self._p_len:
-            self._p_prev.append((len(self.tl) - len(self.buf), t0, w0))
-        self._p_q.append(q_ia)
-        if not self.identity_mount:  # else q_IS is q_IA (_flush copies that column group)
-            self._p_qs.append(q_is)
-        self._p_acc.append(acc)
-        self._p_v.append(v)
-        self._p_w.append(w_a)
-        self._p_seg.append(seg)
-        self._p_len.append(n)
-        if n <= _FEW_SAMPLES:  # a message's few: Python floats beat numpy's per-call cost
-            wl = w_a.ravel().tolist()
-            self.w_prev = (tl[-1], (wl[-3], wl[-2], wl[-1]))
-            self._mq += q_ia.ravel().tolist()
-            self._mw += wl
-            self._mseg += [seg] * n
-        else:  # the mirror keeps the newest _MIRROR (< n) samples
-            k = _MIRROR
-            wl = w_a[-k - 1 :].ravel().tolist()
-            self.w_prev = (tl[-1], (wl[-3], wl[-2], wl[-1]))
-            self._mq = q_ia[-k:].ravel().tolist()
-            self._mw = wl[3:]
-            self._mseg = [seg] * k
-            self._mprev = (tl[-k - 1], (wl[0], wl[1], wl[2]), seg)
+        _store(
+            self.buf.grow(n),
+            t,
+            float(self.seg),
+            q_ia,
+            q_is,
+            acc,
+            _NO_V if v is None else v,
+            w_a,
+            self.w_prev,
+            self.COLUMNS,
+        )
         self.tl += tl
 
-    def _flush(self) -> None:
-        """Move the pending pieces into the buffer: one copy per column group for all."""
-        if not self._p_len:
-            return
-        n = len(self.tl) - len(self.buf)
-        rows = self.buf.grow(n)
-        self._rows_list = None
-        rows[:, self.T] = self.tl[len(self.tl) - n :]
-        seg = self._p_seg
-        if seg.count(seg[0]) == len(seg):  # one segment: no per-piece repeat
-            rows[:, self.SEG] = seg[0]
-        else:
-            rows[:, self.SEG] = np.repeat(seg, self._p_len)
-        np.concatenate(self._p_q, out=rows[:, self.Q : self.Q + 4])
-        if self.identity_mount:
-            rows[:, self.QS : self.QS + 4] = rows[:, self.Q : self.Q + 4]
-        else:
-            np.concatenate(self._p_qs, out=rows[:, self.QS : self.QS + 4])
-        np.concatenate(self._p_acc, out=rows[:, self.ACC : self.ACC + 3])
-        if self.p.method == "paper":
-            np.concatenate(self._p_v, out=rows[:, self.V : self.V + 3])  # type: ignore[arg-type]
-        else:
-            rows[:, self.V : self.V + 3] = 0.0
-        w = rows[:, self.W : self.W + 3]
-        np.concatenate(self._p_w, out=w)
-        # dω: the same backward difference as _run's (bit-identical), over all pieces at
-        # once: the row before, or where that is not the previous sample the (t, ω) _run took.
-        # The three axes as rows: one loop over the samples each (numpy loops over the
-        # buffer's (n, 3) column groups 3 elements at a time)
-        t = rows[:, self.T]
-        dt = np.empty(n)
-        dt[1:] = t[:-1]
-        dw = np.empty((3, n))
-        dw[:, 1:] = w[:-1].T
-        for j, t0, w0 in self._p_prev:
-            dt[j] = t0
-            dw[:, j] = w0
-        del self._p_q[:], self._p_qs[:], self._p_acc[:], self._p_v[:], self._p_w[:]
-        del self._p_seg[:], self._p_len[:], self._p_prev[:]
-        np.subtract(t, dt, out=dt)
-        np.subtract(w.T, dw, out=dw)
-        np.divide(dw, dt, out=rows[:, self.DW : self.DW + 3].T)
+    def lookup(self) -> Array:
+        """Every sample held (N, ``WIDTH``), for the rows' look-ups: the columns
+        :data:`LOOKUP` are time, segment id, q_IA, ω_A and dω_A."""
+        return self.buf.view()
 
     def trim(self, t_keep: float) -> None:
         i = max(0, bisect.bisect_left(self.tl, t_keep) - 2)
         if i > 0:
-            if i > len(self.buf):
-                self._flush()
             self.buf.drop(i)
-            self._rows_list = None
-            extra = len(self._mseg) - (len(self.tl) - i)
-            if extra > 0:  # the mirror loses its oldest: the last of them is _mprev now
-                j = extra - 1
-                self._mprev = (
-                    self.tl[len(self.tl) - len(self._mseg) + j],
-                    tuple(self._mw[3 * j : 3 * j + 3]),
-                    self._mseg[j],
-                )
-                del self._mq[: 4 * extra], self._mw[: 3 * extra], self._mseg[:extra]
             del self.tl[:i]
-
-    def _sample(self, i: int) -> tuple[list[float], list[float], list[float], float]:
-        """Sample ``i``'s q_IA, ω_A, dω_A and segment id as floats: from the mirror, or
-        the buffer for an older one."""
-        k = i - (len(self.tl) - len(self._mseg))
-        if k >= 0:
-            return (
-                self._mq[4 * k : 4 * k + 4],
-                self._mw[3 * k : 3 * k + 3],
-                self._dw(k),
-                self._mseg[k],
-            )
-        rows = self._rows_list
-        if rows is None or i >= len(rows):
-            rows = self._list_rows()
-        r = rows[i]
-        return r[1:5], r[5:8], r[8:11], r[0]
-
-    def _list_rows(self) -> list[list[float]]:
-        """The buffer's segment id, q_IA, ω_A and dω_A as floats, made once for many
-        look-ups behind the mirror (an analysis's rows)."""
-        self._flush()
-        rows: list[list[float]] = self.buf.view()[:, self.SEG : self.DW + 3].tolist()
-        self._rows_list = rows
-        return rows
-
-    def _dw(self, k: int) -> list[float]:
-        """dω_A of mirror sample ``k``: the backward difference ``_flush`` takes (the same
-        arithmetic), 0 at a segment's first sample (ω_A against itself, 1 s earlier)."""
-        tl, mw, mseg = self.tl, self._mw, self._mseg
-        j = len(tl) - len(mseg) + k
-        tj, seg = tl[j], mseg[k]
-        x, y, z = mw[3 * k : 3 * k + 3]
-        if k > 0 and mseg[k - 1] == seg:
-            t0 = tl[j - 1]
-            p0, p1, p2 = mw[3 * k - 3 : 3 * k]
-        elif k == 0 and self._mprev is not None and self._mprev[2] == seg:
-            t0, (p0, p1, p2), _ = self._mprev
-        else:
-            t0, p0, p1, p2 = tj - 1.0, x, y, z
-        h = tj - t0
-        return [(x - p0) / h, (y - p1) / h, (z - p2) / h]
 
     def smooth(self, g: Array, half: float) -> tuple[Idx, Array]:
         """Acceleration terms (v, u) at grid times ``g``, anti-aliased by a centred Hann
         kernel of half-width ``half`` (s). Centred, so it shifts nothing in time: a lag
         between the two sides would turn into a heading bias on circular paths.
         Returns ``(ok, x)`` with x (n, 6); ok where the whole kernel lies in one segment."""
-        self._flush()
         tl = self.tl
         n, ng = len(tl), len(g)
         ts = self.ts or 0.01
@@ -399,7 +317,6 @@ class ImuStage:
         """Fusion channels of samples ``lo:hi`` (n, 15): the acceleration term v (used as
         is), the lever term u = q r q* (differentiated after the low-pass), and the sensor
         axes in I (for the bias and lever fits). Computed only when the grid needs them."""
-        self._flush()
         rows = self.buf.view()[lo:hi]
         n = len(rows)
         if self.p.method == "paper":
@@ -436,39 +353,6 @@ class ImuStage:
         ok = (i1 > 0) & (i1 < n) & (segid[i0] == segid[i1c])
         w = np.clip((s - t[i0]) / (t[i1c] - t[i0]), 0.0, 1.0)
         return ok, i0, i1c, w
-
-    def at(self, s: float, asof: float) -> tuple[bool, tuple[float, ...], float]:
-        """Orientation q_IA (w, x, y, z) at time ``s`` (nlerp, :func:`rows.nlerp`), whether
-        both neighbours exist in one segment, and the segment id. Where ``s > asof`` (the IMU
-        had only reached ``asof`` when the row was decided), predicted from the newest sample
-        at or before ``asof`` (:func:`rows.predict`)."""
-        tl = self.tl
-        n = len(tl)
-        if n < 2:
-            return False, NAN4, 0.0
-        if s > asof:
-            # the newest sample at or before asof (usually the newest of all)
-            j = n - 1 if asof >= tl[-1] else bisect.bisect_right(tl, asof) - 1
-            jc = j if j > 0 else 0
-            q, w, dw, seg = self._sample(jc)
-            return j >= 0, rows.predict(q, w, dw, s - tl[jc]), seg
-        i1 = bisect.bisect_left(tl, s)
-        i1c = min(max(i1, 1), n - 1)
-        i0 = i1c - 1
-        k = i0 - (n - len(self._mseg))
-        if k >= 0:  # both in the mirror (the live case): one slice
-            q01, (seg0, seg1) = self._mq[4 * k : 4 * k + 8], self._mseg[k : k + 2]
-            q0, q1 = q01[:4], q01[4:]
-        else:  # older samples (an analysis's rows): their segment and q_IA from the buffer
-            buf = self._rows_list
-            if buf is None or i1c >= len(buf):
-                buf = self._list_rows()
-            r0, r1 = buf[i0], buf[i1c]
-            seg0, q0, seg1, q1 = r0[0], r0[1:5], r1[0], r1[1:5]
-        t0 = tl[i0]
-        a = (s - t0) / (tl[i1c] - t0)
-        a = 0.0 if a < 0.0 else 1.0 if a > 1.0 else a  # as np.clip (NaN passes)
-        return 0 < i1 < n and seg0 == seg1, rows.nlerp(q0, q1, a), seg1
 
     def interp_channels(self, s: Array) -> tuple[Idx, Array]:
         """Fusion channels linearly interpolated at ``s`` (no anti-alias: the paper's way)."""

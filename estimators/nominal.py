@@ -1,6 +1,7 @@
-"""Stage of the pipeline's rows: the nominal shoulder and the upper-arm length (paper §3.4,
-contract §4), per row, from the specifications fed so far (parameter, rope reference,
-automatic after convergence or after a reset event)."""
+"""Stage of the pipeline's rows: the nominal shoulder's specifications (paper §3.4, contract
+§4) fed so far (parameter, rope reference, automatic after convergence or after a reset
+event), and the upper-arm length per row. The rows' kernel (:mod:`estimators.rows`) keeps
+the nominal shoulder of each row from these specs."""
 
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ NAN3 = (math.nan,) * 3
 
 
 class NominalStage:
-    """Nominal shoulder and upper-arm length of each row.
+    """Nominal-shoulder specs and the upper-arm length of each row.
 
     Specifications in feed order: ``("param", −inf, xyz)`` from the parameters, ``("point", t,
     xyz)`` for a ``shoulder_reference`` event (the rope end held on the shoulder), ``("auto",
@@ -35,11 +36,7 @@ class NominalStage:
             self._specs.append(("param", -math.inf, point))
         else:
             self._specs.append(("auto", -math.inf, None))
-        self._nom_spec = -1
-        self._nom_point: tuple[float, ...] | None = None
-        self._nom_acc: list[tuple[float, ...]] = []
-        self._nom_t0: float | None = None
-        self._ref_point: Array | None = None  # the last rope-measured point (for l_A)
+        self._table: Array | None = None  # the specs for the rows' kernel, when asked
         self.arm_len = params.upper_arm_length_m
         self._arm_spec = -1
         self._arm_spec_done = -1
@@ -50,10 +47,12 @@ class NominalStage:
     def add_reference(self, t: float, point: Array) -> None:
         """A ``shoulder_reference`` event: the rope end on the shoulder at ``point`` (m)."""
         self._specs.append(("point", t, np.asarray(point, dtype=np.float64)))
+        self._table = None
 
     def add_reset(self, t: float) -> None:
         """A ``nominal_reset`` event: the nominal shoulder is set anew, automatically."""
         self._specs.append(("auto", t, None))
+        self._table = None
 
     def spec_for(self, tr: float) -> int:
         """The newest spec (in feed order) whose time has come at row time ``tr``."""
@@ -62,9 +61,30 @@ class NominalStage:
             k -= 1
         return k
 
-    def arm_length(self, t: float, p_e: Sequence[float], k: int) -> float:
-        """Upper-arm length at a row of spec ``k`` (see :meth:`_measure`)."""
-        return self.arm_len if k in self._arm_free else self._measure(t, p_e, k)
+    def table(self) -> Array:
+        """The specs (k, 4) for :func:`estimators.rows.compute`, which keeps the nominal
+        shoulder itself: each one's point and 1 if automatic (the mean estimate over
+        ``auto_nominal_s`` after convergence, or after a reset event)."""
+        if self._table is None:
+            self._table = np.array(
+                [
+                    (*(NAN3 if p is None else p.tolist()), 1.0 if p is None else 0.0)
+                    for _, _, p in self._specs
+                ]
+            )
+        return self._table
+
+    def arm_lengths(self, t: list[float], p_e: Array, ks: list[int], out: Array) -> None:
+        """Upper-arm length (m) at rows ``t`` (s) with elbows ``p_e`` (n, 3) of specs ``ks``
+        (see :meth:`_measure`), in row order, into ``out`` (n,)."""
+        free = self._arm_free
+        if free.issuperset(ks):  # the usual: every row takes arm_len as it is
+            out[:] = self.arm_len
+        else:
+            out[:] = [
+                self.arm_len if k in free else self._measure(tk, p.tolist(), k)
+                for tk, p, k in zip(t, p_e, ks, strict=True)
+            ]
 
     def _fixed(self, k: int) -> bool:
         """Whether :meth:`_measure` returns ``arm_len`` for every row of spec ``k`` from
@@ -108,25 +128,3 @@ class NominalStage:
                 return length
         self.quality.reject("arm_reference_unusable")
         return self.arm_len
-
-    def nominal_at(
-        self, t: float, shoulder: tuple[float, ...], good: bool, k: int
-    ) -> tuple[float, ...]:
-        """Nominal shoulder at a row (contract §4): parameter, rope reference, or automatic
-        (mean estimate over ``auto_nominal_s`` after convergence / after a reset event)."""
-        if k != self._nom_spec:
-            self._nom_spec = k
-            kind, _, point = self._specs[k]
-            self._nom_point = None if point is None else tuple(point.tolist())
-            self._nom_acc, self._nom_t0 = [], None
-            if point is not None and kind == "point":
-                self._ref_point = point
-        if self._nom_point is None and good:
-            if self._nom_t0 is None:
-                self._nom_t0 = t
-            self._nom_acc.append(shoulder)
-            if t - self._nom_t0 >= self.params.auto_nominal_s:
-                m = len(self._nom_acc)
-                self._nom_point = tuple(math.fsum(c) / m for c in zip(*self._nom_acc, strict=True))
-                self._nom_acc = []
-        return NAN3 if self._nom_point is None else self._nom_point

@@ -3,7 +3,6 @@ cycle verdicts and episodes, and a device's data-quality counters."""
 
 from __future__ import annotations
 
-import operator
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, TypeAlias
@@ -46,21 +45,6 @@ for _name in ROW_COLUMNS:
 COL = {name: a for name, a, _ in LAYOUT}
 SPAN = {name: (a, w) for name, a, w in LAYOUT}
 NCOL = sum(w for _, _, w in LAYOUT)
-_IN_ORDER = operator.itemgetter(*ROW_COLUMNS)  # a row's values by name, in column order
-_VECTOR = tuple(w > 1 for _, _, w in LAYOUT)
-
-
-def flatten_row(values: Mapping[str, float | Sequence[float]]) -> list[float]:
-    """One row's floats in the matrix's column order, from its values by column name (a
-    vector column as its components, of its width): a new column is added in
-    :data:`ROW_COLUMNS` (and ``_WIDTHS``) and where its value is computed."""
-    out: list[float] = []
-    for v, vector in zip(_IN_ORDER(values), _VECTOR, strict=True):
-        if vector:
-            out += v
-        else:
-            out.append(v)
-    return out
 
 
 class RowTable(Mapping[str, Any]):

@@ -45,7 +45,7 @@ from estimators.grid_stage import GridStage
 from estimators.heading_stage import HeadingStage
 from estimators.imu_stage import ImuStage
 from estimators.nominal import NominalStage
-from estimators.output import COL, NCOL, Output, Quality, RowTable, flatten_row
+from estimators.output import COL, NCOL, Output, Quality, RowTable
 from estimators.params import PipelineParams
 from estimators.robot_stage import RobotStage
 from estimators.verdicts import CycleJudge, CycleVerdict
@@ -132,14 +132,22 @@ class Pipeline:
         self._segmenter = CycleSegmenter(CycleParams(mode=p.cycle_mode))
         self._judge = CycleJudge(self._cp)
         self._episodes = EpisodeTracker(self._cp)
-        self._timing = p.angle_timing  # a property: read once, not per row
-        self._xc_prev_t = -math.inf
-        self._xc_prev: Sequence[float] = (0.0, 0.0, 0.0)
         self._grid_trimmed = -math.inf
         self._next_trim = -math.inf  # robot stamp from which the next poll trims buffers
         # a row uses the latest heading update the grid is sure to have reached by the time
         # the row became ready (two grid steps and the anti-alias half-width back)
         self._snap_lag = 2.0 * self._grid.dt + self._grid.half + 1e-9
+        # the rows' kernel: its parameters and carried state, and the heading snapshots as
+        # an array (made again when they change)
+        self._row_st, self._row_part = rows.new_state(
+            p.robot_time_offset_s,
+            self._snap_lag,
+            p.auto_nominal_s,
+            p.displacement_norm,
+            p.angle_timing,
+        )
+        self._snaps = np.empty((0, 8))
+        self._snaps_last: tuple[float, ...] | None = None  # the newest snapshot in _snaps
 
     # ------------------------------------------------------------------ feeding
 
@@ -511,108 +519,56 @@ class Pipeline:
         self._robot.append([x - off for x in tl] if off else tl, pes, self.quality)
 
     def _rows(self) -> Output:
-        """Rows of the robot samples decided since the last poll (eqs. 9–12, §3.4), one at a
-        time: live polls bring one row, an analysis brings them all, through the same code."""
+        """Rows of the robot samples decided since the last poll (eqs. 9–12, §3.4): their
+        formulas in one compiled call (:func:`estimators.rows.compute`; a live poll brings
+        one row, an analysis all of them), then the compensation rules row by row."""
         lo, hi = self._n_done, self._n_decided
         if hi <= lo:
             return Output()
         self._n_done = hi
         n = hi - lo
-        flat: list[float] = []
+        tl = self._row_t[lo:hi]
+        decisions = self._decisions[lo:hi]
+        rin = np.empty((n, 5))  # t, with IMU, nominal spec, asof, l_A
+        rin[:, 0] = tl
+        rin[:, 1:4] = decisions
+        robot = self._rowq.take_block(n)  # wrist, p_E, x_C
+        self._nominal.arm_lengths(tl, robot[:, 3:6], [d[1] for d in decisions], rin[:, 4])
+        snaps = self._heading.snapshots()
+        last = snaps[-1] if snaps else None
+        if len(snaps) != len(self._snaps) or last is not self._snaps_last:
+            self._snaps = np.array(snaps, dtype=np.float64).reshape(-1, 8)
+            self._snaps_last = last
+        m = np.empty((n, NCOL))
+        rows.compute(
+            rin,
+            robot,
+            self._imu.lookup(),
+            self._snaps,
+            self._nominal.table(),
+            self._row_st,
+            self._row_part,
+            _ROW_COLS,
+            m,
+        )
+        self.quality.rows_without_imu += sum(1 for d in decisions if not d[0])
         codes: list[int] = []
         changes: list[tuple[float, str]] = []
         verdicts: list[CycleVerdict] = []
         episodes: list[Any] = []
         seg, ind, judge, eps = self._segmenter, self._indicator, self._judge, self._episodes
-        for t, dec, r in zip(
-            self._row_t[lo:hi], self._decisions[lo:hi], self._rowq.take_rows(n), strict=True
-        ):
-            row = self._row(t, dec, r)
-            flat += row
-            d = row[_DISP]
+        disp = m[:, _DISP].tolist()
+        for ti, (wx, wy), d in zip(tl, robot[:, 0:2].tolist(), disp, strict=True):
             # compensation rule (§3.4); segment first: a completed cycle sets the tolerated
             # duration from its end on
-            boundaries = seg.push(t, r[0], r[1])
-            code = ind.push(t, d, boundaries, changes)
+            boundaries = seg.push(ti, wx, wy)
+            code = ind.push(ti, d, boundaries, changes)
             codes.append(code)
-            verdicts += judge.push(t, code, d, boundaries)
-            episodes += eps.push(t, code, d)
-        m = np.fromiter(flat, np.float64, len(flat)).reshape(n, NCOL)
+            verdicts += judge.push(ti, code, d, boundaries)
+            episodes += eps.push(ti, code, d)
         table = RowTable(m, np.array(codes, dtype=np.int8))
         fb = _feedback(changes, verdicts) if changes or verdicts else []
         return Output(table, fb, verdicts, episodes)
-
-    def _row(self, t: float, dec: tuple[bool, int, float], r: Sequence[float]) -> list[float]:
-        """One row in Python floats, by column name (:data:`estimators.output.ROW_COLUMNS`),
-        flattened in the matrix's order (the state is filled in later)."""
-        p = self.params
-        with_imu, k, asof = dec
-        s = t - p.robot_time_offset_s
-        # the heading updates the grid had surely produced when the row was decided
-        snap = self._heading.snapshot(min(s, asof) - self._snap_lag)
-        lat = snap[7]
-        latency = (lat if lat >= 0.0 else 0.0) if math.isfinite(lat) else 0.0  # M.maximum
-        ok_n, q_n, seg_n = self._imu.at(s, asof)
-        ok_p, q_p, seg_p = (ok_n, q_n, seg_n) if latency == 0.0 else self._imu.at(s - latency, asof)
-        ok = ok_p and with_imu and ok_n and seg_n == seg_p
-        (_, h_std, h_conf, h_offset, h_good), q_ra, x_now, x_a = rows.heading_arm(
-            s, ok, snap, seg_p, q_n, q_p
-        )
-        wrist, p_e, x_c = r[0:3], r[3:6], r[6:9]
-        prev_t, prev = self._xc_prev_t, self._xc_prev
-        self._xc_prev_t, self._xc_prev = t, x_c
-        la = self._nominal.arm_length(t, p_e, k)
-        sh = rows.shoulder(p_e, x_a, la)
-        nom = self._nominal.nominal_at(t, sh, h_good, k)
-        angle, disp, conv, elev, azim = rows.angles(x_now, x_c, p_e, sh, nom, p.displacement_norm)
-        if self._timing != "fresh":
-            angle = self._angle(x_now, x_a, x_c, prev, t - prev_t, latency)
-        if not with_imu:
-            self.quality.rows_without_imu += 1
-        return flatten_row(
-            {
-                "t": t,
-                "elbow": p_e,
-                "shoulder": sh,
-                "elbow_angle_deg": angle,
-                "heading_offset_deg": h_offset,
-                "heading_converged": 1.0 if h_good else 0.0,
-                "shoulder_displacement_m": disp,
-                "state": math.nan,  # the indicator's code, set from the codes column
-                "q_ra": q_ra,
-                "heading_std_deg": h_std,
-                "heading_confidence": h_conf,
-                "upper_arm_elevation_deg": elev,
-                "upper_arm_azimuth_deg": azim,
-                "nominal_shoulder": nom,
-                "conv_elbow_angle_deg": conv,
-                "wrist": wrist,
-                "upper_arm_length_m": la,
-            }
-        )
-
-    def _angle(
-        self,
-        x_now: Sequence[float],
-        x_pair: Sequence[float],
-        x_c: Sequence[float],
-        prev: Sequence[float],
-        dt: float,
-        latency: float,
-    ) -> float:
-        """Elbow angle (eq. 11) at the row's time.
-
-        The robot's forearm axis is ``latency`` old while the IMU's upper-arm axis is fresh;
-        ``extrapolate`` carries the forearm axis forward along its last robot step (``prev``,
-        ``dt`` earlier) so both segments describe the same instant; ``fresh`` pairs them as
-        they are; ``paired`` uses the upper arm at the robot's instant.
-        """
-        mode = self._timing
-        if mode == "paired":
-            return rows.angle_deg(x_pair, x_c)
-        if mode == "extrapolate":
-            x_c = rows.extrapolate(x_c, prev, dt, latency)
-        return rows.angle_deg(x_now, x_c)
 
     def _trim(self) -> None:
         # keep what the next rows, grid points and heading windows can still need
@@ -676,3 +632,5 @@ def _kind_of(msg: Any) -> str:
 _COINCIDENT_M2 = 1e-12  # squared cuff distance, m², below which the cuffs coincide
 _TRIM_EVERY_S = 2.0  # s of robot data between two trims (1 s: +2 % CPU; 5 s: +10 % memory)
 _DISP = COL["shoulder_displacement_m"]
+# the rows' kernel's columns: the IMU samples' looked up, then its outputs'
+_ROW_COLS = np.concatenate((ImuStage.LOOKUP, [COL[name] for name in rows.OUT])).astype(np.int64)

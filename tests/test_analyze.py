@@ -88,9 +88,9 @@ def test_analyze_with_kernels_built_ahead_of_time(rec: Path, tmp_path: Path) -> 
     code = (
         "import sys; from backend.cli import main; "
         f"main(['analyze', {str(rec / 'recording.jsonl.gz')!r}, '--out', sys.argv[1]]); "
-        "from estimators import filters, imu_stage, jit, peaks; "
-        "print(all(jit.uses_aot(k) for k in (filters._sosfilt, imu_stage._weighted_sums, "
-        "peaks._peaks)), 'numba' in sys.modules)"
+        "from estimators import aot, jit; "
+        "print(all(jit.uses_aot(getattr(sys.modules[k.fn.__module__], k.fn.__name__)) "
+        "for k in aot.kernels().values()), 'numba' in sys.modules)"
     )
     for out, aot_env in (("aot", "1"), ("jit", "0")):
         run = subprocess.run(

@@ -16,7 +16,8 @@ import numba
 import numpy as np
 import pytest
 
-from estimators import aot, filters, imu_stage, jit, peaks
+from estimators import aot, filters, imu_stage, jit, peaks, rows
+from estimators.output import COL, NCOL
 
 RNG = np.random.default_rng(3)
 
@@ -50,7 +51,7 @@ def pair(built: ModuleType, fn: Any) -> tuple[Callable[..., Any], Callable[..., 
 
 def test_every_kernel_is_built_and_declared_once() -> None:
     names = sorted(k.fn.__name__ for k in aot.kernels().values())
-    assert names == ["_peaks", "_sosfilt", "_weighted_sums"]
+    assert names == ["_peaks", "_sosfilt", "_store", "_weighted_sums", "compute"]
 
 
 def test_sosfilt_equals_the_jit(built: ModuleType) -> None:
@@ -87,6 +88,67 @@ def test_peaks_equal_the_jit(built: ModuleType) -> None:
         for floor in (0.0, 0.5, 3.0):
             a, j = compiled(x, floor), jitted(x, floor)
             assert a.dtype == j.dtype and a.tobytes() == j.tobytes()
+
+
+def test_store_equals_the_jit(built: ModuleType) -> None:
+    compiled, jitted = pair(built, imu_stage._store)
+    cols = imu_stage.ImuStage.COLUMNS
+    for n, v_rows in [(1, 0), (7, 7), (300, 0)]:
+        t = np.cumsum(RNG.random(n) * 0.02 + 1e-3)
+        x = [RNG.normal(size=(n, c)) for c in (4, 4, 3, 3, 3)]
+        v = x[3] if v_rows else np.zeros((0, 3))
+        for prev in (np.full(4, np.nan), np.r_[t[0] - 0.01, RNG.normal(size=3)]):
+            a = np.full((n, imu_stage.ImuStage.WIDTH), -1.0)
+            j, pa, pj = a.copy(), prev.copy(), prev.copy()
+            compiled(a, t, 2.0, x[0], x[1], x[2], v, x[4], pa, cols)
+            jitted(j, t, 2.0, x[0], x[1], x[2], v, x[4], pj, cols)
+            assert a.tobytes() == j.tobytes() and pa.tobytes() == pj.tobytes()
+
+
+def test_rows_equal_the_jit(built: ModuleType) -> None:
+    """Every branch: rows with and without the IMU, decided before it arrived, before the
+    first sample and the first heading update, across a segment change, in each timing mode;
+    the automatic nominal shoulder's exact mean."""
+    compiled, jitted = pair(built, rows.compute)
+    ni, n = 400, 600
+    imu = np.zeros((ni, imu_stage.ImuStage.WIDTH))
+    imu[:, 0] = np.arange(ni) * 0.01
+    imu[:, 1] = (imu[:, 0] > 2.0).astype(float)
+    q = RNG.normal(size=(ni, 4))
+    imu[:, 2:6] = q / np.linalg.norm(q, axis=1)[:, None]
+    imu[:, 6:12] = RNG.normal(size=(ni, 6))
+    t = np.sort(RNG.uniform(-0.5, 4.5, n))
+    rin = np.stack(
+        [
+            t,
+            (RNG.random(n) > 0.1).astype(float),
+            (t > 3.0).astype(float),
+            np.where(RNG.random(n) > 0.8, t - 0.03, np.inf),
+            np.full(n, 0.3),
+        ],
+        axis=1,
+    )
+    robot = RNG.normal(size=(n, 9))
+    snaps = np.array(
+        [
+            [0.5, 0.3, 0.01, 0.4, 0.02, 0.0, 0.0, 0.05],
+            [1.0, 0.31, 0.01, 0.9, 0.01, 1.0, 0.0, -0.1],
+            [2.5, np.nan, 0.0, 2.5, np.inf, 0.0, 1.0, np.nan],
+            [3.0, 7.0, -0.02, 2.9, 0.01, 1.0, 1.0, 0.04],
+        ]
+    )
+    specs = np.array([[np.nan, np.nan, np.nan, 1.0], [0.1, 0.2, 0.3, 0.0]])
+    col = np.concatenate((imu_stage.ImuStage.LOOKUP, [COL[c] for c in rows.OUT])).astype(np.int64)
+    for timing in rows.TIMING:
+        for norm in ("horizontal", "3d"):
+            st, part = rows.new_state(0.02, 0.1, 0.5, norm, timing)
+            sa, pa, sj, pj = st.copy(), part.copy(), st.copy(), part.copy()
+            oa, oj = np.zeros((n, NCOL)), np.zeros((n, NCOL))
+            compiled(rin, robot, imu, snaps, specs, sa, pa, col, oa)
+            jitted(rin, robot, imu, snaps, specs, sj, pj, col, oj)
+            assert oa.tobytes() == oj.tobytes() and sa.tobytes() == sj.tobytes()
+            assert pa.tobytes() == pj.tobytes()
+            assert np.isfinite(oa[:, COL["nominal_shoulder"]]).any()
 
 
 def test_a_wrong_argument_is_refused(built: ModuleType) -> None:

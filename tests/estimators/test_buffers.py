@@ -8,9 +8,9 @@ from hypothesis import strategies as st
 
 from estimators.buffers import RowQueue
 
-# a schedule: ("push", 1) one row, ("append", k) a block of k rows, ("rows"|"block", k) take k
+# a schedule: ("push", 1) one row, ("append", k) a block of k rows, ("block", k) take k
 ops = st.lists(
-    st.tuples(st.sampled_from(["push", "append", "rows", "block"]), st.integers(0, 7)),
+    st.tuples(st.sampled_from(["push", "append", "block"]), st.integers(0, 7)),
     max_size=40,
 )
 
@@ -32,12 +32,9 @@ def test_row_queue_is_a_fifo(schedule: list[tuple[str, int]]) -> None:
             q.append(block)
         else:
             k = min(k, len(made) - len(taken))
-            if op == "rows":
-                got = [list(r) for r in q.take_rows(k)]
-            else:
-                b = q.take_block(k)
-                assert b.shape == (k, 3)
-                got = b.tolist()
+            b = q.take_block(k)
+            assert b.shape == (k, 3)
+            got = b.tolist()
             taken.extend(got)
     assert taken == made[: len(taken)]
     rest = len(made) - len(taken)

@@ -1,34 +1,19 @@
 """The IMU stage (:mod:`estimators.imu_stage`): however its samples are split into pieces,
-it holds the same numbers; its orientation look-up."""
+it holds the same numbers (its orientation look-up: tests/estimators/test_rows.py)."""
 
 from __future__ import annotations
 
 import math
 
 import numpy as np
-import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from estimators import quaternion as quat
 from estimators.imu_stage import ImuStage
 from estimators.output import Quality
 from estimators.params import PipelineParams
-from protocol import wire
-from tests.conftest import Session
-
-Arrays = tuple[np.ndarray, np.ndarray, np.ndarray]
-
-
-@pytest.fixture(scope="module")
-def imu(short_session: Session) -> Arrays:
-    """The session's first 30 s of IMU samples, with a short gap (bridged) and a long one
-    (the 6D filter restarts: a new segment)."""
-    ms = [m for m in short_session.messages if isinstance(m, wire.ImuMessage)]
-    t = np.concatenate([m.t for m in ms])
-    gyr = np.concatenate([m.gyr for m in ms])
-    acc = np.concatenate([m.acc for m in ms])
-    keep = (t < 30.0) & ~((t > 10.0) & (t < 10.05)) & ~((t > 20.0) & (t < 21.0))
-    return t[keep], gyr[keep], acc[keep]
+from tests.estimators.conftest import Arrays
 
 
 def _fed(
@@ -80,25 +65,20 @@ def test_any_split_into_pieces_holds_the_same_numbers(
     assert _bits(one.channels(0, n)) == _bits(many.channels(0, n))
 
 
-def test_lookup_at_and_between_samples(imu: Arrays) -> None:
-    """``at``: a sample's own orientation at its time; half-way between two samples, the
-    unit quaternion half-way along the arc; past ``asof``, the newest sample turned by its
-    gyro; nothing before the data or across the long gap."""
-    stage, _ = _fed(imu, list(range(4, len(imu[0]), 4)))
-    t = stage.t
-    q = stage.buf.cols(stage.Q, stage.Q + 4)
-    for k in (5, 400, 1500, len(t) - 2):
-        ok, qk, _ = stage.at(float(t[k]), math.inf)
-        assert ok and np.allclose(qk, q[k], atol=1e-12)
-        ok, qm, _ = stage.at(0.5 * float(t[k] + t[k + 1]), math.inf)
-        a, b = q[k], q[k + 1] * np.sign(q[k] @ q[k + 1])
-        assert ok and abs(np.linalg.norm(qm) - 1.0) < 1e-12
-        assert abs(abs(np.dot(qm, a)) - abs(np.dot(qm, b))) < 1e-12
-    # past asof: the gyro's rotation over the step (small-angle), from the newest sample
-    k = 700
-    ok, qp, _ = stage.at(float(t[k]) + 0.02, float(t[k]))
-    w = stage.buf.cols(stage.W, stage.W + 3)[k]
-    turn = 2.0 * math.degrees(math.acos(min(1.0, abs(float(np.dot(qp, q[k]))))))
-    assert ok and turn == pytest.approx(math.degrees(np.linalg.norm(w)) * 0.02, rel=0.05, abs=1e-3)
-    assert not stage.at(float(t[0]) - 1.0, math.inf)[0]
-    assert not stage.at(20.5, math.inf)[0]  # inside the long gap: two segments
+def test_buffer_columns(imu: Arrays) -> None:
+    """With a tilted mounting: q_IA is q_IS turned by it, ω_A is the gyro turned into A,
+    dω_A the backward difference within a segment (0 at its first sample); the improved
+    method keeps no eq. 1–2 acceleration."""
+    mount = (math.cos(0.3), 0.0, math.sin(0.3), 0.0)
+    stage, _ = _fed(imu, list(range(3, len(imu[0]), 5)), PipelineParams(mounting_quat=mount))
+    b = stage.buf.view()
+    q, qs = b[:, stage.Q : stage.Q + 4], b[:, stage.QS : stage.QS + 4]
+    assert np.allclose(q, quat.mul(qs, np.array(mount)), atol=1e-15)
+    t, seg, w = b[:, stage.T], b[:, stage.SEG], b[:, stage.W : stage.W + 3]
+    dw = b[:, stage.DW : stage.DW + 3]
+    first = np.r_[True, seg[1:] != seg[:-1]]
+    assert (dw[first] == 0.0).all()
+    want = np.diff(w, axis=0) / np.diff(t)[:, None]
+    assert np.array_equal(dw[1:][~first[1:]], want[~first[1:]])
+    assert np.allclose(w[:50], quat.rotate(quat.conj(np.array(mount)), imu[1][:50]), atol=1e-15)
+    assert (b[:, stage.V : stage.V + 3] == 0.0).all()

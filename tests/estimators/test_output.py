@@ -13,7 +13,6 @@ from estimators.output import (
     RowTable,
     column_index,
     concat_rows,
-    flatten_row,
 )
 
 
@@ -68,20 +67,3 @@ def test_quality_report_is_sorted_and_bounded() -> None:
     d = q.as_dict()
     assert list(d["rejected"].items()) == [("duplicate_t", 2), ("time_backwards", 2)]
     assert len(d["gaps"]) == 1000
-
-
-def test_a_row_is_built_by_column_name() -> None:
-    # each column's values, by name, land in its own span of the matrix, whatever the order
-    widths = {name: w for name, (_, w) in SPAN.items()}
-    values = {
-        name: (
-            float(i) if widths[name] == 1 else tuple(float(10 * i + j) for j in range(widths[name]))
-        )
-        for i, name in enumerate(reversed(ROW_COLUMNS))
-    }
-    row = flatten_row(values)
-    assert len(row) == NCOL
-    for name, (a, w) in SPAN.items():
-        got = row[a : a + w]
-        want = [values[name]] if w == 1 else list(values[name])
-        assert got == want, name
