@@ -78,6 +78,8 @@ class NominalStage:
         """Upper-arm length (m) at rows ``t`` (s) with elbows ``p_e`` (n, 3) of specs ``ks``
         (see :meth:`_measure`), in row order, into ``out`` (n,)."""
         free = self._arm_free
+        for k in set(ks) - free:  # specs that never measure join the free ones
+            self._fixed(k)
         if free.issuperset(ks):  # the usual: every row takes arm_len as it is
             out[:] = self.arm_len
         else:
