@@ -27,8 +27,9 @@ GROUPS = ("numpy", "vqf", "backend.cli", "backend.analysis")
 PACKAGES = ("backend", "estimators", "protocol", "simulator", "evaluation")
 START = "import backend.cli, backend.analysis"
 KERNELS = (
-    "from estimators import filters, imu_stage, jit, peaks; "
-    "print(all(jit.uses_aot(k) for k in (filters._sosfilt, imu_stage._weighted_sums, peaks._peaks)))"
+    "import sys; from estimators import aot, jit; "
+    "print(all(jit.uses_aot(getattr(sys.modules[k.fn.__module__], k.fn.__name__)) "
+    "for k in aot.kernels().values()))"
 )
 # numba's first call of a compiled (cached) function (with REHAB_AOT=0): it loads numba's
 # registries, and with them scipy.linalg (numba's BLAS check) and cffi's parser when installed
