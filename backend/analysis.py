@@ -39,6 +39,7 @@ DETAILS_HEADER = (
     "wrist_x,wrist_y,wrist_z,upper_arm_length_m"
 )
 STATE_NAMES = {-1: "", 0: "ok", 1: "outside", 2: "warning"}
+_FEED = Verdict.FEED  # a module global: checked for every stream message
 
 
 _EST_FMT = "%r,%.5f,%.5f,%.5f,%.5f,%.5f,%.5f,%.3f,%.3f,%d,%.5f,%s"
@@ -134,7 +135,7 @@ class DeviceRun:
         """The clock guard on an IMU/robot message (stamps ``t0``..``t1``): False if it is
         rejected (counted); a reset restarts the pipeline first (:meth:`restart`)."""
         verdict = self.clock.stream(t0, t1)
-        if verdict is Verdict.FEED:
+        if verdict is _FEED:
             return True
         if verdict is Verdict.REJECT:
             self.reject(self.clock.reason)
@@ -363,11 +364,11 @@ def analyze(
                         others[dev] = others.get(dev, 0) + 1
                     continue
             if type(item) is span:
-                k = cols[item.key.kind]
-                if item.key.kind != "camera" and not run.admit_stream(
-                    k.tl[item.i0], k.tl[item.i1 - 1]
-                ):
-                    continue
+                kind = item.key.kind
+                if kind != "camera":
+                    tl = cols[kind].tl
+                    if not run.admit_stream(tl[item.i0], tl[item.i1 - 1]):
+                        continue
                 pipeline = run.pipeline  # a new one after a clock reset
                 feed_span(pipeline, item, cols)
             elif isinstance(item, wire.WireError):

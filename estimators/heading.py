@@ -430,15 +430,16 @@ def _fit_with_sensor_errors(
     jac: Array,
     rate0: float,
     params: HeadingParams,
-) -> tuple[float, float, float]:
+) -> tuple[float, float, float, Array | None]:
     """Heading and drift jointly with the accelerometer bias and the lever-arm error.
 
     A sensor-frame accelerometer bias β appears in frame I as ``Σ_j β_j c_j(t)`` (c_j the
     sensor axes in I, high-passed like the 6D filter's levelling), and an error Δr of the
     assumed IMU→elbow vector as ``Σ_j Δr_j c̈_j(t)``; both are linear in their unknowns once
     δ(t) is fixed, so the fit alternates the drift fit with a regularised least squares.
-    ``jac`` (3n, 6) is their :func:`_jacobian`. Returns ``(δ0, ρ, std δ0)``; the fitted
-    errors go to ``state``.
+    ``jac`` (3n, 6) is their :func:`_jacobian`. Returns ``(δ0, ρ, std δ0, residual)``, the
+    residual :func:`_derotated_residual` at that δ0 and ρ (None if no alternation ran); the
+    fitted errors go to ``state``.
     """
     n = len(a)
     jtj = jac.T @ jac
@@ -447,18 +448,20 @@ def _fit_with_sensor_errors(
     span = float(tau[-1] - tau[0]) if n > 1 else 0.0
     n_eff = max(1.0, span * params.effective_rate_hz)
     d0, rate, sd = 0.0, rate0, math.inf
+    res: Array | None = None
     # once converged the previous window's errors are a warm start: one alternation is enough
     for _ in range(1 if state.converged else params.sensor_fit_iterations):
         jx = jac @ x  # used twice (the same product, so the same bits)
         ac = a + jx.reshape(n, 3)
         d0, rate, sd, _ = fit_drift(ac, b, tau, rate0, params, n_iter=3)
         # residual in frame I: Rz(−δ_k) b_k − a_k = jac_k x + noise
-        y = _derotated_residual(d0, rate, tau, a, b).reshape(-1)
+        res = _derotated_residual(d0, rate, tau, a, b)
+        y = res.reshape(-1)
         r = y - jx
         var = max(float(r @ r) / (3 * n), 1e-8) * n / n_eff
         x = np.asarray(np.linalg.solve(jtj / var + prior, (jac.T @ y) / var), np.float64)
     state.acc_bias, state.lever_error = x[:3].copy(), x[3:].copy()
-    return d0, rate, sd
+    return d0, rate, sd, res
 
 
 def _derotated_residual(d0: float, rate: float, tau: Array, a: Array, b: Array) -> Array:
@@ -539,10 +542,14 @@ def _delay_apply(x: Array, i0: IndexArray, i1: IndexArray, w: Array) -> Array:
 
 
 def _median_step(t: Array) -> float:
-    """``float(np.median(np.diff(t)))`` (s) for ``len(t) > 1``, without ``np.median``'s ~30 µs
-    of wrapping: the same order statistics from one partition, the middle two averaged as
-    ``np.mean`` does (their sum over 2), and NaN if a step is NaN (NaN sorts last)."""
-    d = np.diff(t)
+    """``float(np.median(np.diff(t)))`` (s) for ``len(t) > 1`` (:func:`_median`)."""
+    return _median(np.diff(t))
+
+
+def _median(d: Array) -> float:
+    """``float(np.median(d))`` of a non-empty 1-D ``d``, without ``np.median``'s ~30 µs of
+    wrapping: the same order statistics from one partition, the middle two averaged as
+    ``np.mean`` does (their sum over 2), and NaN if a value is NaN (NaN sorts last)."""
     n = len(d)
     h = n // 2
     part = np.partition(d, [h - 1, h, n - 1] if n % 2 == 0 else [h, n - 1])
@@ -614,17 +621,17 @@ def update_improved(
     # the sensor errors need cl not all zero (as np.any(cl); a nonzero first sample answers)
     if jac is None or not jac.any():
         jac = None
-    d0, rate, sd = _fit(state, a, b, tau, jac, rate0, params)
+    d0, rate, sd, res = _fit(state, a, b, tau, jac, rate0, params)
     if params.block_s > 0:
         # Heteroscedastic refit: stretches the model does not explain (above all the 6D
         # filter's levelling transient while its gyro-bias estimate settles, whose leak of
         # gravity grows with the bias) count with the weight their own residual gives them,
         # instead of inflating the uncertainty of the whole window until they leave it.
-        sw = _block_weights(d0, rate, tau, a, b, jac, state, params.block_s)
+        sw = _block_weights(d0, rate, tau, a, b, jac, state, params.block_s, res)
         if sw is not None:
             a, b = a * sw[:, None], b * sw[:, None]
             jac = None if jac is None else jac * np.repeat(sw, 3)[:, None]
-            d0, rate, sd = _fit(state, a, b, tau, jac, rate0, params)
+            d0, rate, sd, _ = _fit(state, a, b, tau, jac, rate0, params)
     d = wrap(d0 + rate * lag_s)
     prev = predict(state, t)
     state.n_counted += 1
@@ -652,12 +659,13 @@ def _fit(
     jac: Array | None,
     rate0: float,
     params: HeadingParams,
-) -> tuple[float, float, float]:
-    """The drift fit, with the sensor errors when ``jac`` is given: ``(δ0, ρ, std δ0)``."""
+) -> tuple[float, float, float, Array | None]:
+    """The drift fit, with the sensor errors when ``jac`` is given: ``(δ0, ρ, std δ0)`` and,
+    with the sensor errors, the residual at them (:func:`_fit_with_sensor_errors`)."""
     if jac is not None:
         return _fit_with_sensor_errors(state, a, b, tau, jac, rate0, params)
     d0, rate, sd, _ = fit_drift(a, b, tau, rate0, params)
-    return d0, rate, sd
+    return d0, rate, sd, None
 
 
 def _block_weights(
@@ -669,12 +677,14 @@ def _block_weights(
     jac: Array | None,
     state: HeadingState,
     block_s: float,
+    residual: Array | None = None,
 ) -> Array | None:
     """Square roots of per-sample weights (n,) from the fit's horizontal residual in blocks of
     ``block_s``: ``min(1, median / block's mean)`` of the blocks' mean squared residual, so a
     block noisier than the typical one counts as its own noise warrants. None when every
-    weight is 1."""
-    r = _derotated_residual(d0, rate, tau, a, b)
+    weight is 1. ``residual``: :func:`_derotated_residual` of these arguments if the fit made
+    it already (its trigonometry is a good part of the cost); it is overwritten."""
+    r = _derotated_residual(d0, rate, tau, a, b) if residual is None else residual
     if jac is not None:
         x = np.concatenate((state.acc_bias, state.lever_error))
         r -= (jac @ x).reshape(-1, 3)
@@ -685,7 +695,7 @@ def _block_weights(
         return None
     count = np.bincount(blk, minlength=nb)
     mean = np.bincount(blk, weights=e2, minlength=nb) / np.maximum(count, 1)
-    med = float(np.median(mean[count > 0]))
+    med = _median(mean[count > 0])
     if not med > 0.0:
         return None
     w = np.minimum(1.0, med / np.maximum(mean, 1e-300))

@@ -132,6 +132,11 @@ class Pipeline:
         self._segmenter = CycleSegmenter(CycleParams(mode=p.cycle_mode))
         self._judge = CycleJudge(self._cp)
         self._episodes = EpisodeTracker(self._cp)
+        # read at every message fed (predict_s is a property)
+        self._off = p.robot_time_offset_s
+        self._wait = p.imu_wait_s
+        self._ahead = p.predict_s
+        self._lead_max = p.imu_lead_max_s
         self._grid_trimmed = -math.inf
         self._next_trim = -math.inf  # robot stamp from which the next poll trims buffers
         # a row uses the latest heading update the grid is sure to have reached by the time
@@ -220,7 +225,8 @@ class Pipeline:
         else:
             self._close_imu_run()
             self._imu_run = [t, gyr, acc, i0, i1]
-        self._decide()
+        if self._n_decided < len(self._row_t):
+            self._decide()
         return True
 
     def _admit_imu(self, t0: float, t1: float, n: int, seq: int | None, segment: str) -> bool:
@@ -230,10 +236,10 @@ class Pipeline:
             )
             return False
         # bounded memory: decided in feed order (never by poll timing), so batch and stream agree
-        ref = self._robot_frontier - self.params.robot_time_offset_s
+        ref = self._robot_frontier - self._off
         if ref == -math.inf:
             ref = self._imu_first if self._imu_first == self._imu_first else t0
-        if t1 - ref > self.params.imu_lead_max_s:
+        if t1 - ref > self._lead_max:
             self.quality.reject("imu_without_robot")
             return False
         if not self._imu_stream.admit(t0, seq, self.quality):
@@ -342,24 +348,24 @@ class Pipeline:
         ``imu_predict_s`` behind (the upper arm is then predicted from the newest IMU
         sample), or the robot ran ahead by ``imu_wait_s`` (then they are emitted without
         IMU-derived values). Decided in feed order, so batching changes nothing."""
-        if self._n_decided >= len(self._row_t):
-            return
-        off = self.params.robot_time_offset_s
-        wait = self.params.imu_wait_s
-        ahead = self.params.predict_s
-        front = self._imu_frontier
-        n = len(self._row_t)
+        row_t = self._row_t
+        n = len(row_t)
         i = self._n_decided
-        nominal = self._nominal
+        if i >= n:
+            return
+        off, wait, ahead = self._off, self._wait, self._ahead
+        front = self._imu_frontier
+        spec_for = self._nominal.spec_for
+        decisions = self._decisions
         while i < n:
-            tr = self._row_t[i]
+            tr = row_t[i]
             asof = math.inf
             with_imu = front >= tr - off
             if not with_imu and tr - off - front <= ahead:
                 with_imu, asof = True, front
             elif not with_imu and self._robot_frontier < tr + wait:
                 break
-            self._decisions.append((with_imu, nominal.spec_for(tr), asof))
+            decisions.append((with_imu, spec_for(tr), asof))
             i += 1
         self._n_decided = i
 
