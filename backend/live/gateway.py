@@ -11,6 +11,8 @@ write), and runs no pipeline: devices' data goes to the workers through its Zeno
   (one put per worker per 30 ms tick, messages joined by newlines),
   like any other Zenoh subscriber.
 - Local workers: ``N`` child processes (``rehab worker``), killed with the node.
+- Device discovery: workers subscribe only to the devices they hold; this node samples the
+  devices' inputs and tells the workers which devices it heard (``<prefix>/@devices``).
 """
 
 from __future__ import annotations
@@ -60,11 +62,13 @@ START_RETRY_PERIOD_S = 0.1
 # that does not match is decoded in full.
 ROWS_HEAD = re.compile(rb'\{"type":"(?:estimate|joints)","device":"([^"]+)"')
 # Device discovery (docs/scaling.md): the devices' inputs reach this node's subscriptions
-# in ring channels of WATCH_RING samples (Zenoh drops the oldest: nothing per message in
-# Python), drained every WATCH_S; the admitted devices heard within NOTICE_WINDOW_S go to
-# the workers on `<prefix>/@devices` every NOTICE_S, and at once when one is new.
-WATCH_RING = 256
-WATCH_S = 0.1
+# in ring channels of WATCH_RING samples (Zenoh keeps the newest: nothing per message in
+# Python), drained every WATCH_S (at 50 devices 64 robot messages span 51 ms, more than a
+# device's 40 ms period: every streaming device is in every drain; with many more devices
+# a drain is a sample of them); the admitted devices heard within NOTICE_WINDOW_S go to the
+# workers on `<prefix>/@devices` every NOTICE_S, and at once when one is new.
+WATCH_RING = 64
+WATCH_S = 0.25
 NOTICE_S = 0.5
 NOTICE_WINDOW_S = 1.0
 

@@ -547,8 +547,15 @@ class WorkerNode(LiveManager):
     def _gain(self, name: str) -> None:
         if name not in self.held.epochs:
             return  # lost again meanwhile
-        log.info("device %s: lease taken (epoch %d)", name, self.held.epochs[name])
-        self._first_unheld.pop(name, None)
+        # what it sent between its first notice here and the subscription went to no
+        # pipeline (docs/scaling.md, "Device discovery"): that wait is logged
+        first = self._first_unheld.pop(name, None)
+        log.info(
+            "device %s: lease taken (epoch %d, %.2f s after this worker first noticed it)",
+            name,
+            self.held.epochs[name],
+            0.0 if first is None else time.monotonic() - first,
+        )
         if self.zio is not None:  # its data from now on (before a start query's answer)
             self.zio.subscribe_device(name)
         self._worker_for(name)

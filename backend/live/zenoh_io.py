@@ -169,7 +169,9 @@ class ZenohIO:
         """A worker's receiving thread: every ``RX_GATHER_S``, whatever waits in the held
         devices' channels (a ``try_recv`` is ~0.2 µs and keeps the GIL: one take per
         round, as with one channel)."""
-        while not self._closing.wait(RX_GATHER_S):
+        closing = self._closing
+        while not closing.is_set():
+            time.sleep(RX_GATHER_S)  # cheaper than an Event's timed wait, ~500 times a second
             for channel in self._channels:
                 try:
                     sample = channel.try_recv()
