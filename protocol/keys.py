@@ -82,3 +82,23 @@ def joints(device: str, prefix: str = DEFAULT_PREFIX) -> str:
 def subscription(prefix: str = DEFAULT_PREFIX) -> str:
     """Everything devices publish (the service filters out its own outputs by kind)."""
     return f"{prefix}/*/**"
+
+
+def device_data(device: str, prefix: str = DEFAULT_PREFIX) -> str:
+    """Everything one device publishes: a worker's subscription while it holds the device."""
+    return f"{prefix}/{device}/**"
+
+
+def device_inputs(prefix: str = DEFAULT_PREFIX) -> tuple[str, ...]:
+    """Every device's inputs, one expression per kind (not the service's own outputs)."""
+    return (
+        f"{prefix}/*/robot",
+        f"{prefix}/*/imu/*",
+        f"{prefix}/*/camera",
+        f"{prefix}/*/event",
+    )
+
+
+def devices_notice(prefix: str = DEFAULT_PREFIX) -> str:
+    """The API node's list of the devices it heard recently (service-internal, not §1)."""
+    return f"{prefix}/@devices"

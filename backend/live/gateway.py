@@ -11,6 +11,8 @@ write), and runs no pipeline: devices' data goes to the workers through its Zeno
   (one put per worker per 30 ms tick, messages joined by newlines),
   like any other Zenoh subscriber.
 - Local workers: ``N`` child processes (``rehab worker``), killed with the node.
+- Device discovery: workers subscribe only to the devices they hold; this node samples the
+  devices' inputs and tells the workers which devices it heard (``<prefix>/@devices``).
 """
 
 from __future__ import annotations
@@ -48,6 +50,7 @@ from backend.live.run import session_params
 from backend.schemas.live import StatusMsg
 from backend.settings import Settings
 from estimators.params import PipelineParams
+from protocol import keys
 
 log = logging.getLogger(__name__)
 
@@ -58,6 +61,16 @@ START_RETRY_PERIOD_S = 0.1
 # drop one that nobody on this node watches without decoding its ~20 columns. A message
 # that does not match is decoded in full.
 ROWS_HEAD = re.compile(rb'\{"type":"(?:estimate|joints)","device":"([^"]+)"')
+# Device discovery (docs/scaling.md): the devices' inputs reach this node's subscriptions
+# in ring channels of WATCH_RING samples (Zenoh keeps the newest: nothing per message in
+# Python), drained every WATCH_S (at 50 devices 64 robot messages span 51 ms, more than a
+# device's 40 ms period: every streaming device is in every drain; with many more devices
+# a drain is a sample of them); the admitted devices heard within NOTICE_WINDOW_S go to the
+# workers on `<prefix>/@devices` every NOTICE_S, and at once when one is new.
+WATCH_RING = 64
+WATCH_S = 0.25
+NOTICE_S = 0.5
+NOTICE_WINDOW_S = 1.0
 
 
 def _die_with_parent() -> None:  # pragma: no cover (runs in the child before exec)
@@ -121,6 +134,9 @@ class Gateway(LiveManager):
         self.last_status: dict[str, str] = {}
         self.session_of: dict[str, int | None] = {}
         self._feed_sub: Any = None
+        self._watch: list[Any] = []
+        self._notice_pub: zenoh.Publisher | None = None
+        self.heard: dict[str, float] = {}  # device → monotonic time this node last heard it
         self._command: list[str] = []
         self._env: dict[str, str] = {}
 
@@ -133,6 +149,7 @@ class Gateway(LiveManager):
                 loop.call_soon_threadsafe(self._on_feeds, sample.payload.to_bytes())
 
             self._feed_sub = self.zio.session.declare_subscriber(feed_key(self.prefix), on_feed)
+            self._start_watch(self.zio.session)
         s = self.settings
         # the children join this node's router, or the router this node is a client of
         endpoint = s.zenoh_connect or (local_endpoint(s.zenoh_listen) if s.zenoh_listen else None)
@@ -171,6 +188,73 @@ class Gateway(LiveManager):
             )
         finally:
             sub.undeclare()  # type: ignore[no-untyped-call]
+
+    # ------------------------------------------------------------------ device discovery
+
+    def _start_watch(self, session: zenoh.Session) -> None:
+        """Workers subscribe only to the devices they hold, so they learn of the others from
+        this node, which every topology has: it samples the devices' inputs and tells the
+        workers which it heard. No liveliness token is needed (the contract asks none of a
+        device); a token, where a device has one, is heard by the workers directly."""
+        for expr in keys.device_inputs(self.prefix):
+            self._watch.append(
+                session.declare_subscriber(expr, zenoh.handlers.RingChannel(WATCH_RING))
+            )
+        self._notice_pub = session.declare_publisher(
+            keys.devices_notice(self.prefix), congestion_control=zenoh.CongestionControl.DROP
+        )
+        self._tasks.append(asyncio.create_task(self._watch_devices(), name="device-watch"))
+
+    def _heard_now(self) -> list[str]:
+        """Drain the rings: the admitted devices heard since the last call that are new here.
+        Names not admitted are counted as pending (as their holder would have); keys
+        outside the contract as ``unknown_key`` (both sampled: the rings keep the newest)."""
+        now, wall = time.monotonic(), time.time()
+        new: list[str] = []
+        for sub in self._watch:
+            channel = sub.handler
+            sample = channel.try_recv()
+            while sample is not None:
+                try:
+                    device = keys.parse(str(sample.key_expr), self.prefix).device
+                except keys.KeyError_:
+                    self.ingest.count("unknown_key")
+                else:
+                    if not self.admission.allows(device):
+                        self.admission.refuse(device, wall)
+                    elif device not in self.heard:
+                        new.append(device)
+                        self.heard[device] = now
+                    else:
+                        self.heard[device] = now
+                sample = channel.try_recv()
+        return new
+
+    def _notice(self) -> None:
+        """The admitted devices heard within ``NOTICE_WINDOW_S`` to the workers."""
+        now = time.monotonic()
+        names = []
+        for name, t in list(self.heard.items()):
+            if now - t > NOTICE_WINDOW_S or not self.admission.allows(name):  # or removed
+                del self.heard[name]
+            else:
+                names.append(name)
+        if names and self._notice_pub is not None:
+            self._notice_pub.put(orjson.dumps(names))
+
+    async def _watch_devices(self) -> None:
+        last = 0.0
+        while True:
+            await asyncio.sleep(WATCH_S)
+            try:
+                new = self._heard_now()
+                if new:  # registered at once: a session can start on it
+                    self._touch(new)
+                if new or time.monotonic() - last >= NOTICE_S:
+                    last = time.monotonic()
+                    self._notice()
+            except Exception:
+                log.exception("device discovery failed")
 
     def _spawn(self) -> subprocess.Popen[bytes]:
         return subprocess.Popen(self._command, env=self._env, preexec_fn=_die_with_parent)
@@ -236,6 +320,12 @@ class Gateway(LiveManager):
         if self._feed_sub is not None:
             self._feed_sub.undeclare()
             self._feed_sub = None
+        for sub in self._watch:
+            sub.undeclare()
+        self._watch.clear()
+        if self._notice_pub is not None:
+            self._notice_pub.undeclare()  # type: ignore[no-untyped-call]
+            self._notice_pub = None
         await super().close()
 
     # ------------------------------------------------------------------ WebSockets

@@ -100,6 +100,7 @@ class LiveManager:
         # how the Zenoh session is opened (a worker filters keys, an API node takes no data)
         self._zio_accept: Callable[[str], bool] | None = None
         self._zio_subscribe = True
+        self._zio_per_device = False  # a worker: a subscription per held device
         self._zio_mode: str | None = None
 
     # ------------------------------------------------------------------ lifecycle
@@ -133,6 +134,7 @@ class LiveManager:
                 MAX_PAYLOAD_BYTES,
                 accept=self._zio_accept,
                 subscribe=self._zio_subscribe,
+                per_device=self._zio_per_device,
             )
             try:
                 zio.open()

@@ -2,11 +2,12 @@
 
 A :class:`WorkerNode` is the live manager restricted to its leased devices:
 
-- Zenoh: the device data subscription, filtered on the key before any copy (a device held
-  by another worker costs a key parse); estimates and feedback published as before; a
-  liveliness token ``<prefix>/@worker/<id>``; a queryable ``<prefix>/@ctl/*`` answering the
-  API node's session commands for the devices held (others stay silent); the dashboard's
-  messages on ``<prefix>/@feed/<id>`` for the API node's WebSockets.
+- Zenoh: a subscription to each held device's keys, declared with its lease and undeclared
+  when it goes (devices are discovered from the API node's notices on ``<prefix>/@devices``,
+  their liveliness tokens, and leases that expired lately); estimates and feedback published
+  as before; a liveliness token ``<prefix>/@worker/<id>``; a queryable ``<prefix>/@ctl/*``
+  answering the API node's session commands for the devices held (others stay silent); the
+  dashboard's messages on ``<prefix>/@feed/<id>`` for the API node's WebSockets.
 - Leases (:mod:`backend.live.lease`), renewed every ``RENEW_S``; a device whose lease is
   not surely held stops at once (no processing, publishing or writing).
 - The database is the truth about sessions: on taking a device, and every second, the
@@ -249,18 +250,30 @@ class WorkerNode(LiveManager):
     # ------------------------------------------------------------------ Zenoh
 
     def _accept(self, key: str) -> bool:
-        """Zenoh's receiving thread: only the held devices' inputs go further."""
+        """Zenoh's receiving thread: only the held devices' inputs go further (what was
+        still in a dropped device's channel stops here)."""
         try:
             pk = keys.parse(key, self.prefix)
         except keys.KeyError_:
             return True  # counted as unknown by the ingest
-        if pk.kind not in keys.INPUT_KINDS:
-            return False
-        self.seen[pk.device] = time.monotonic()
-        return pk.device in self.held.epochs
+        return pk.kind in keys.INPUT_KINDS and pk.device in self.held.epochs
+
+    def _noticed(self, payload: bytes) -> None:
+        """The API node's list of the devices it heard: candidates for a lease."""
+        try:
+            names = orjson.loads(payload)
+        except orjson.JSONDecodeError:
+            return
+        if not isinstance(names, list):
+            return
+        now = time.monotonic()
+        for name in names:
+            if isinstance(name, str) and keys.DEVICE_RE.fullmatch(name):
+                self.seen[name] = now
 
     async def start(self, require_zenoh: bool = True) -> None:
         self._zio_accept = self._accept
+        self._zio_per_device = True  # subscribed to a device's keys while holding it
         await super().start(require_zenoh=require_zenoh)
         self.stats.clear()  # only the held devices' (added as leases are taken)
         zio = self.zio
@@ -287,6 +300,11 @@ class WorkerNode(LiveManager):
             loop.call_soon_threadsafe(self._control, query, device, payload)
 
         self._extra.append(s.declare_queryable(control_key(self.prefix), on_query))
+
+        def on_notice(sample: zenoh.Sample) -> None:
+            loop.call_soon_threadsafe(self._noticed, sample.payload.to_bytes())
+
+        self._extra.append(s.declare_subscriber(keys.devices_notice(self.prefix), on_notice))
         self._feed_pub = s.declare_publisher(
             feed_key(self.prefix, self.held.holder),
             congestion_control=zenoh.CongestionControl.DROP,
@@ -488,6 +506,11 @@ class WorkerNode(LiveManager):
         workers = sorted(self.workers_alive | {holder})
         for name in list(self.announced - self.seen.keys()):
             self.seen[name] = now
+        # a lease that expired lately (its holder died or was cut off) is a candidate
+        # without the API node's notice: failover does not depend on that node
+        for name, (was, _, expires) in rows.items():
+            if was and sent_wall - SEEN_S < expires <= sent_wall and name not in self.seen:
+                self.seen[name] = now
         room = TAKE_PER_STEP
         if self.max_devices:
             room = min(room, self.max_devices - len(self.held.epochs))
@@ -524,8 +547,17 @@ class WorkerNode(LiveManager):
     def _gain(self, name: str) -> None:
         if name not in self.held.epochs:
             return  # lost again meanwhile
-        log.info("device %s: lease taken (epoch %d)", name, self.held.epochs[name])
-        self._first_unheld.pop(name, None)
+        # what it sent between its first notice here and the subscription went to no
+        # pipeline (docs/scaling.md, "Device discovery"): that wait is logged
+        first = self._first_unheld.pop(name, None)
+        log.info(
+            "device %s: lease taken (epoch %d, %.2f s after this worker first noticed it)",
+            name,
+            self.held.epochs[name],
+            0.0 if first is None else time.monotonic() - first,
+        )
+        if self.zio is not None:  # its data from now on (before a start query's answer)
+            self.zio.subscribe_device(name)
         self._worker_for(name)
         if name in self.announced:  # its token came before the lease: online by it, as in
             super()._on_token(name, True)  # the one process (not only while data flows)
@@ -536,6 +568,8 @@ class WorkerNode(LiveManager):
             return  # already done
         log.warning("device %s: %s; stopped here", name, why)
         self.held.drop(name)
+        if self.zio is not None:
+            self.zio.unsubscribe_device(name)
         self.stats.pop(name, None)
         w = self.workers.pop(name, None)
         if w is not None:

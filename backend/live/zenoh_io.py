@@ -43,6 +43,9 @@ RX_CHANNEL = 1024
 # loop then waited for it back: ~110 µs per put. With it: ~270 takes a second, ~75 µs per
 # put, for at most 2 ms more on a sample's way in (the channel holds what arrives meanwhile).
 RX_GATHER_S = 0.002
+# A worker's subscription per held device (docs/scaling.md, "Device discovery"): samples
+# wait in the device's channel until the receiving thread's next round (every RX_GATHER_S)
+DEVICE_CHANNEL = 256
 
 
 @dataclass
@@ -64,6 +67,7 @@ class ZenohIO:
         max_payload: int,
         accept: Callable[[str], bool] | None = None,
         subscribe: bool = True,
+        per_device: bool = False,
     ) -> None:
         self._config = config
         self.prefix = prefix
@@ -74,6 +78,12 @@ class ZenohIO:
         # a worker's filter on the key (the devices it holds), before any copy of the payload
         self._accept = accept
         self._subscribe = subscribe  # an API-only node takes no device data
+        # a worker: one subscription per held device (subscribe_device), not all the data
+        self._per_device = per_device
+        self._device_subs: dict[str, zenoh.Subscriber[Any]] = {}
+        # the receiving thread's view: replaced whole (never changed in place) on a change
+        self._channels: tuple[zenoh.handlers.Handler[zenoh.Sample], ...] = ()
+        self._closing = threading.Event()
         self._buf: deque[RawSample] = deque()
         self._buf_bytes = 0
         self._bytes_lock = threading.Lock()  # held for an addition only
@@ -102,6 +112,10 @@ class ZenohIO:
 
     def _open_data(self) -> None:
         assert self._session is not None
+        if self._per_device:
+            self._rx = threading.Thread(target=self._poll, name="zenoh-rx", daemon=True)
+            self._rx.start()
+            return
         data = self._session.declare_subscriber(
             keys.subscription(self.prefix),
             zenoh.handlers.FifoChannel(RX_CHANNEL),
@@ -117,6 +131,11 @@ class ZenohIO:
         session, self._session = self._session, None
         if session is None:
             return
+        self._closing.set()
+        self._channels = ()
+        for sub in self._device_subs.values():
+            sub.undeclare()  # type: ignore[no-untyped-call]
+        self._device_subs.clear()
         for sub in self._subs:
             sub.undeclare()  # type: ignore[no-untyped-call]
         if self._rx is not None:
@@ -145,6 +164,43 @@ class ZenohIO:
                 time.sleep(RX_GATHER_S)
         except zenoh.ZError:  # the subscriber was undeclared: the session is closing
             return
+
+    def _poll(self) -> None:
+        """A worker's receiving thread: every ``RX_GATHER_S``, whatever waits in the held
+        devices' channels (a ``try_recv`` is ~0.2 µs and keeps the GIL: one take per
+        round, as with one channel)."""
+        closing = self._closing
+        while not closing.is_set():
+            time.sleep(RX_GATHER_S)  # cheaper than an Event's timed wait, ~500 times a second
+            for channel in self._channels:
+                try:
+                    sample = channel.try_recv()
+                    while sample is not None:
+                        self._on_sample(sample)
+                        sample = channel.try_recv()
+                except zenoh.ZError:  # undeclared meanwhile: the device was dropped
+                    continue
+
+    def subscribe_device(self, device: str) -> None:
+        """Take ``device``'s data from now on (a worker that has just leased it). Declared
+        on the loop, never in a Zenoh callback; the router learns of it before anything
+        this session sends afterwards (one link, in order)."""
+        if device in self._device_subs or self._session is None or not self._per_device:
+            return
+        sub = self._session.declare_subscriber(
+            keys.device_data(device, self.prefix),
+            zenoh.handlers.FifoChannel(DEVICE_CHANNEL),
+            allowed_origin=zenoh.Locality.REMOTE,
+        )
+        self._device_subs[device] = sub
+        self._channels = (*self._channels, sub.handler)
+
+    def unsubscribe_device(self, device: str) -> None:
+        sub = self._device_subs.pop(device, None)
+        if sub is None:
+            return
+        self._channels = tuple(s.handler for s in self._device_subs.values())
+        sub.undeclare()  # type: ignore[no-untyped-call]
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         if sample.kind != zenoh.SampleKind.PUT:

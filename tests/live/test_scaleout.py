@@ -145,7 +145,10 @@ def in_order_once(lines: list[tuple[str, bytes]], sent: list[Outgoing]) -> bool:
 
 
 @pytest.mark.slow
-def test_sigkill_a_worker_sessions_continue(tmp_path: Path) -> None:
+@pytest.mark.parametrize("tokens", [True, False], ids=["tokens", "no-tokens"])
+def test_sigkill_a_worker_sessions_continue(tmp_path: Path, tokens: bool) -> None:
+    """``no-tokens``: devices found from their data only (the API node's notices), and the
+    dead worker's devices from their expired leases (workers subscribe per lease)."""
     names, outgoing = streams(10, 45.0)
     cluster = Cluster(tmp_path / "data", workers=2)
     est = Estimates(cluster.endpoint)
@@ -154,7 +157,11 @@ def test_sigkill_a_worker_sessions_continue(tmp_path: Path) -> None:
     try:
         api, _ = login(cluster.url, cluster.settings)
         with Publisher.connect(cluster.endpoint) as pub:
-            pub.declare(outgoing)
+            if tokens:
+                pub.declare(outgoing)
+            else:
+                for m in outgoing:
+                    pub.declare_key(m.key)
             assert pub.wait_for_subscribers(10.0)
             player = threading.Thread(
                 target=play, args=(pub, outgoing, 1.0), daemon=True, kwargs={"stop": stop}

@@ -7,7 +7,7 @@ from __future__ import annotations
 import time
 
 from backend.live.gateway import Gateway
-from protocol import recording
+from protocol import keys, recording
 from simulator import SimConfig, simulate
 from simulator.publish import play, prepare
 from tests.live.conftest import Service, wait_for
@@ -94,3 +94,33 @@ def test_a_quiet_device_holding_its_token_stays_online(workers_service: Service)
     wait_for(
         lambda: (svc.device(name) or {}).get("status") == "offline", timeout=30, what="offline"
     )
+
+
+def test_a_device_without_a_token_is_found_from_its_data(workers_service: Service) -> None:
+    """Workers subscribe only to the devices they hold; a device that declares no
+    liveliness token (the contract asks none) is found by the API node's sampling of the
+    devices' inputs and its notice to the workers: one worker leases it, runs its pipeline
+    and publishes its estimates (one holder), and the registry lists it."""
+    svc = workers_service
+    assert isinstance(svc.manager, Gateway)
+    name = "wp04"
+    outgoing = prepare(simulate(SimConfig(seed=14, duration_s=12.0, device=name)).messages)
+    holders: list[str] = []
+    with svc.publisher() as pub:
+        listen = pub.session.declare_subscriber(
+            keys.estimate(name),
+            lambda s: holders.append(s.attachment.to_bytes().decode() if s.attachment else ""),
+        )
+        try:
+            for m in outgoing:
+                pub.declare_key(m.key)  # publishers only: no pub.announce(), no token
+            assert pub.wait_for_subscribers(10.0)  # the API node's sampling subscriptions
+            play(pub, outgoing, speed=1.0)
+            wait_for(lambda: svc.received(name) > 0, timeout=30, what="data taken")
+            wait_for(lambda: len(holders) > 50, timeout=30, what="estimates")
+        finally:
+            listen.undeclare()
+    assert svc.device(name) is not None
+    assert len(set(holders)) == 1, set(holders)  # one holder, one epoch
+    # the first estimates follow the lease within a second of data (12 s sent)
+    assert len(holders) > 0.7 * sum(m.key.endswith("/robot") for m in outgoing), len(holders)
