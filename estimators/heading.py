@@ -264,7 +264,7 @@ def fit_drift(
         np.ascontiguousarray(a, np.float64),
         np.ascontiguousarray(b, np.float64),
         np.ascontiguousarray(tau, np.float64),
-        _NO_JAC,
+        _NO_CL,
         np.zeros(6),
         _kernel_params(params, rate0, n_iter, 0, 0.0),
         out,
@@ -272,7 +272,7 @@ def fit_drift(
     return float(out[0]), float(out[1]), float(out[2]), float(out[3])
 
 
-_NO_JAC = np.empty((0, 6))
+_NO_CL = np.empty((0, 18))
 
 
 def _kernel_params(
@@ -295,14 +295,15 @@ def _kernel_params(
 
 @aot("void(f8[:, ::1], f8[:, ::1], f8[::1], f8[:, ::1], f8[::1], f8[::1], f8[::1])")
 def _fit_kernel(  # pragma: no cover - compiled
-    a: Any, b: Any, tau: Any, jac: Any, x: Any, par: Any, out: Any
+    a: Any, b: Any, tau: Any, cl: Any, x: Any, par: Any, out: Any
 ) -> None:
     """The improved update's fit: heading and drift (:func:`fit_drift`'s Newton steps),
-    jointly with the accelerometer bias and the lever-arm error when ``jac`` has rows, then
+    jointly with the accelerometer bias and the lever-arm error when ``cl`` has rows, then
     the heteroscedastic block refit when ``block_s > 0``.
 
-    ``a``, ``b`` (n, 3) m/s², ``tau`` (n,) s. ``jac`` (3n, 6) (:func:`_jacobian`) or (0, 6):
-    no sensor errors. A sensor-frame accelerometer bias β appears in frame I as
+    ``a``, ``b`` (n, 3) m/s², ``tau`` (n,) s. ``cl`` (n, 18) (:class:`Window`'s, delayed like
+    ``a``) or (0, 18): no sensor errors; their Jacobian is :func:`_jacobian`'s (made here:
+    numpy's gather and transposing copy cost more than the fit's use of it). A sensor-frame accelerometer bias β appears in frame I as
     ``Σ_j β_j c_j(t)`` and an error Δr of the assumed IMU→elbow vector as
     ``Σ_j Δr_j c̈_j(t)``; both are linear in their unknowns once δ(t) is fixed, so the fit
     alternates the drift fit (``n_iter`` Newton steps) with a regularised least squares
@@ -320,7 +321,14 @@ def _fit_kernel(  # pragma: no cover - compiled
     n = a.shape[0]
     rate0, eff_rate, sig_rho = par[0], par[1], par[2]
     n_iter, n_alt, block_s = int(par[3]), int(par[4]), par[7]
-    has_jac = jac.shape[0] == 3 * n and n > 0
+    has_jac = cl.shape[0] == n and n > 0
+    jac = np.empty((3 * n if has_jac else 0, 6))  # _jacobian(cl)
+    if has_jac:
+        for k in range(n):
+            for i in range(3):
+                for j in range(6):
+                    v = cl[k, 3 * j + i]
+                    jac[3 * k + i, j] = -v if j < 3 else v
     if not has_jac:
         n_alt = 1
     prior = np.empty(6)
@@ -676,19 +684,20 @@ def update_improved(
             delay = _delay_index(ts, state.lag)
             a = _delay_apply(a, *delay)
     rate0 = state.rate if state.converged else 0.0
-    jac = None
+    cl = None
     if params.estimate_sensor_errors and w.cl is not None:
         cl = _rows(w.cl, v, all_valid)
-        jac = _jacobian(cl if delay is None else _delay_apply(cl, *delay))
+        if delay is not None:
+            cl = _delay_apply(cl, *delay)
     # the sensor errors need cl not all zero (as np.any(cl); a nonzero first sample answers)
-    if jac is None or not jac.any():
-        jac = None
+    if cl is None or not cl.any():
+        cl = None
     x = np.concatenate((state.acc_bias, state.lever_error))
     n_alt = 1 if state.converged else params.sensor_fit_iterations  # warm start once converged
-    par = _kernel_params(params, rate0, 4 if jac is None else 3, n_alt, params.block_s)
+    par = _kernel_params(params, rate0, 4 if cl is None else 3, n_alt, params.block_s)
     out = np.empty(4)
-    _fit_kernel(a, b, tau, _NO_JAC if jac is None else jac, x, par, out)
-    if jac is not None:
+    _fit_kernel(a, b, tau, _NO_CL if cl is None else cl, x, par, out)
+    if cl is not None:
         state.acc_bias, state.lever_error = x[:3].copy(), x[3:].copy()
     d0, rate, sd = float(out[0]), float(out[1]), float(out[2])
     d = wrap(d0 + rate * lag_s)

@@ -91,17 +91,17 @@ def test_weighted_sums_equal_the_jit(built: ModuleType) -> None:
 def test_heading_fit_equals_the_jit(built: ModuleType) -> None:
     compiled, jitted = pair(built, heading._fit_kernel)
     params = heading.HeadingParams()
-    for n, with_jac, block_s in [(2, False, 0.0), (500, False, 4.0), (1000, True, 4.0)]:
+    for n, with_cl, block_s in [(2, False, 0.0), (500, False, 4.0), (1000, True, 4.0)]:
         tau = np.linspace(-40.0, 0.0, n)
         a = RNG.normal(size=(n, 3))
         # a noisier stretch, so that the block refit weights it
         b = a[:, [1, 0, 2]] + RNG.normal(size=(n, 3)) * np.where(tau < -30.0, 1.0, 0.05)[:, None]
-        jac = RNG.normal(size=(3 * n, 6)) if with_jac else heading._NO_JAC
+        cl = RNG.normal(size=(n, 18)) if with_cl else heading._NO_CL
         par = heading._kernel_params(params, 0.001, 3, 2, block_s)
         results = []
         for fn in (compiled, jitted):
             x, out = np.full(6, 0.01), np.empty(4)
-            fn(a, b, tau, jac, x, par, out)
+            fn(a, b, tau, cl, x, par, out)
             results.append(x.tobytes() + out.tobytes())
         assert results[0] == results[1]
 
