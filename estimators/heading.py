@@ -302,14 +302,14 @@ def _fit_kernel(  # pragma: no cover - compiled
     the heteroscedastic block refit when ``block_s > 0``.
 
     ``a``, ``b`` (n, 3) m/s², ``tau`` (n,) s. ``cl`` (n, 18) (:class:`Window`'s, delayed like
-    ``a``) or (0, 18): no sensor errors; their Jacobian is :func:`_jacobian`'s (made here:
-    numpy's gather and transposing copy cost more than the fit's use of it). A sensor-frame accelerometer bias β appears in frame I as
-    ``Σ_j β_j c_j(t)`` and an error Δr of the assumed IMU→elbow vector as
-    ``Σ_j Δr_j c̈_j(t)``; both are linear in their unknowns once δ(t) is fixed, so the fit
-    alternates the drift fit (``n_iter`` Newton steps) with a regularised least squares
-    (``n_alt`` times). ``x`` (6,): [β (m/s²), Δr (m)], the warm start, updated. ``par``:
-    ρ_prior (rad/s), effective rate (Hz), σ_ρ (rad/s), n_iter, n_alt, the priors' std of β
-    and Δr, block_s (s). ``out`` (4,): δ0 (rad), ρ (rad/s), std δ0, std ρ.
+    ``a``) or (0, 18): no sensor errors; their Jacobian is :func:`_jacobian`'s, made here
+    (numpy's gather and transposing copy cost more than the fit's use of it). A sensor-frame
+    accelerometer bias β appears in frame I as ``Σ_j β_j c_j(t)`` and an error Δr of the assumed
+    IMU→elbow vector as ``Σ_j Δr_j c̈_j(t)``; both are linear in their unknowns once δ(t) is
+    fixed, so the fit alternates the drift fit (``n_iter`` Newton steps) with a regularised
+    least squares (``n_alt`` times). ``x`` (6,): [β (m/s²), Δr (m)], the warm start, updated.
+    ``par``: ρ_prior (rad/s), effective rate (Hz), σ_ρ (rad/s), n_iter, n_alt, the priors' std
+    of β and Δr, block_s (s). ``out`` (4,): δ0 (rad), ρ (rad/s), std δ0, std ρ.
 
     Block refit: the horizontal residual's mean square in blocks of ``block_s`` gives each
     block the weight ``min(1, median / block's)``, so stretches the model does not explain
