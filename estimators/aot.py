@@ -26,6 +26,7 @@ from estimators import jit
 # the modules holding the kernels declared with ``aot``
 KERNEL_MODULES = (
     "estimators.filters",
+    "estimators.heading",
     "estimators.imu_stage",
     "estimators.peaks",
     "estimators.rows",

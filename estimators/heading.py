@@ -19,16 +19,16 @@ Angles are radians inside, degrees in parameters.
 
 from __future__ import annotations
 
-import functools
 import itertools
 import math
 from dataclasses import dataclass, field
-from typing import Literal, TypeAlias
+from typing import Any, Literal, TypeAlias
 
 import numpy as np
 from numpy.typing import NDArray
 
 from estimators.ball import fits_in_ball
+from estimators.jit import aot
 
 Array: TypeAlias = NDArray[np.float64]
 IndexArray: TypeAlias = NDArray[np.intp]
@@ -257,121 +257,301 @@ def fit_drift(
     ``e_k = δ0 + ρ τ_k`` by Newton steps, where κ turns the cost into a log-likelihood
     (residual variance per sample, corrected for the low-pass's sample correlation).
     ``a``, ``b`` (n, 3) m/s², ``tau`` (n,) s. Returns ``(δ0, ρ, std δ0, std ρ)`` in rad and
-    rad/s.
+    rad/s. (:func:`_fit_kernel` without the sensor errors and the block refit.)
     """
-    n = len(a)
-    work = _DriftWork(a, b)
-    # Constant-heading solution on data de-rotated by the prior drift: the starting point.
-    np.multiply(rate0, tau, out=work.e)  # all ±0 before convergence (no prior drift)
-    sc0, ss0 = work.alignment(maybe_zero=rate0 == 0.0)  # Σ S_c cos + S_s sin, Σ S_s cos − S_c sin
-    d0 = math.atan2(ss0, sc0)
-    e2 = work.horizontal_energy(a, b)
-    span = float(tau[-1] - tau[0]) if n > 1 else 0.0
-    n_eff = max(1.0, span * params.effective_rate_hz)
-    sig_rho = math.radians(params.drift_prior_std_dps)
-    d, r = d0, rate0
+    out = np.empty(4)
+    _fit_kernel(
+        np.ascontiguousarray(a, np.float64),
+        np.ascontiguousarray(b, np.float64),
+        np.ascontiguousarray(tau, np.float64),
+        _NO_CL,
+        np.zeros(6),
+        _kernel_params(params, rate0, n_iter, 0, 0.0),
+        out,
+    )
+    return float(out[0]), float(out[1]), float(out[2]), float(out[3])
+
+
+_NO_CL = np.empty((0, 18))
+
+
+def _kernel_params(
+    params: HeadingParams, rate0: float, n_iter: int, n_alt: int, block_s: float
+) -> Array:
+    """:func:`_fit_kernel`'s ``par``."""
+    return np.array(
+        [
+            rate0,
+            params.effective_rate_hz,
+            math.radians(params.drift_prior_std_dps),
+            float(n_iter),
+            float(n_alt),
+            params.acc_bias_prior,
+            params.lever_prior,
+            block_s,
+        ]
+    )
+
+
+@aot("void(f8[:, ::1], f8[:, ::1], f8[::1], f8[:, ::1], f8[::1], f8[::1], f8[::1])")
+def _fit_kernel(  # pragma: no cover - compiled
+    a: Any, b: Any, tau: Any, cl: Any, x: Any, par: Any, out: Any
+) -> None:
+    """The improved update's fit: heading and drift (:func:`fit_drift`'s Newton steps),
+    jointly with the accelerometer bias and the lever-arm error when ``cl`` has rows, then
+    the heteroscedastic block refit when ``block_s > 0``.
+
+    ``a``, ``b`` (n, 3) m/s², ``tau`` (n,) s. ``cl`` (n, 18) (:class:`Window`'s, delayed like
+    ``a``) or (0, 18): no sensor errors; their Jacobian is :func:`_jacobian`'s, made here
+    (numpy's gather and transposing copy cost more than the fit's use of it). A sensor-frame
+    accelerometer bias β appears in frame I as ``Σ_j β_j c_j(t)`` and an error Δr of the assumed
+    IMU→elbow vector as ``Σ_j Δr_j c̈_j(t)``; both are linear in their unknowns once δ(t) is
+    fixed, so the fit alternates the drift fit (``n_iter`` Newton steps) with a regularised
+    least squares (``n_alt`` times). ``x`` (6,): [β (m/s²), Δr (m)], the warm start, updated.
+    ``par``: ρ_prior (rad/s), effective rate (Hz), σ_ρ (rad/s), n_iter, n_alt, the priors' std
+    of β and Δr, block_s (s). ``out`` (4,): δ0 (rad), ρ (rad/s), std δ0, std ρ.
+
+    Block refit: the horizontal residual's mean square in blocks of ``block_s`` gives each
+    block the weight ``min(1, median / block's)``, so stretches the model does not explain
+    (above all the 6D filter's levelling transient while its gyro-bias estimate settles)
+    count with the weight their own residual gives them, instead of inflating the
+    uncertainty of the whole window; the fit then runs again on the weighted samples
+    (the sensor errors from the first fit as warm start). Sums are the kernel's running
+    sums (not numpy's pairwise ones)."""
+    n = a.shape[0]
+    rate0, eff_rate, sig_rho = par[0], par[1], par[2]
+    n_iter, n_alt, block_s = int(par[3]), int(par[4]), par[7]
+    has_jac = cl.shape[0] == n and n > 0
+    jac = np.empty((3 * n if has_jac else 0, 6))  # _jacobian(cl)
+    if has_jac:
+        for k in range(n):
+            for i in range(3):
+                for j in range(6):
+                    v = cl[k, 3 * j + i]
+                    jac[3 * k + i, j] = -v if j < 3 else v
+    if not has_jac:
+        n_alt = 1
+    prior = np.empty(6)
+    for j in range(3):
+        prior[j] = 1.0 / (par[5] * par[5])
+        prior[3 + j] = 1.0 / (par[6] * par[6])
+    span = tau[n - 1] - tau[0] if n > 1 else 0.0
+    n_eff = max(1.0, span * eff_rate)
     inv_prior = 1.0 / (sig_rho * sig_rho)
-    # the 2x2 Newton system in closed form (numpy's linalg costs ~10 µs a call at this size)
-    h00 = h01 = h11 = det = 0.0
-    for _ in range(n_iter):
-        np.multiply(r, tau, out=work.e)
-        np.add(d, work.e, out=work.e)  # e = d + r τ
-        sf, sg, sft = work.alignment(tau)  # f: alignment, g: its derivative wrt e
-        resid = max(e2 - 2.0 * sf, 1e-12)
-        kappa = n_eff / n / (resid / (2.0 * n))
-        g0 = kappa * sg
-        # ndarray.dot: the BLAS ddot of ``g @ tau``, with less wrapping around it
-        g1 = kappa * float(work.g.dot(tau)) - (r - rate0) * inv_prior
-        h00, h01 = kappa * sf, kappa * sft
-        h11 = kappa * float(work.ft.dot(tau)) + inv_prior
-        det = h00 * h11 - h01 * h01
-        if not (math.isfinite(det) and det > 0.0):
-            break
-        d += (h11 * g0 - h01 * g1) / det
-        r += (h00 * g1 - h01 * g0) / det
-    if det != 0.0 and math.isfinite(det):
-        sd, sr = math.sqrt(max(h11 / det, 0.0)), math.sqrt(max(h00 / det, 0.0))
-    else:
-        sd, sr = math.inf, sig_rho
-    return wrap(d), r, sd, sr
-
-
-class _DriftWork:
-    """:func:`fit_drift`'s per-sample terms for n samples: work arrays allocated once per fit,
-    and the row views the Newton steps use made once (a numpy view costs about what an
-    arithmetic call on 1000 samples does). Every operation runs on 1-D rows: numpy copies
-    small non-contiguous multi-dimensional operands through buffers, which costs more.
-
-    Every term is the same products and sums as written out sample by sample, and every
-    sum a row's pairwise sum, as ``.sum()`` adds it.
-    """
-
-    def __init__(self, a: Array, b: Array) -> None:
-        n = len(a)
-        ax, ay, bx, by = a[:, 0], a[:, 1], b[:, 0], b[:, 1]
-        # coef (2, 2, n): [[S_c,k, S_s,k], [S_s,k, S_c,k]] of the cost's per-sample sinusoids
-        coef = np.empty((2, 2, n))
-        prod = np.empty((2, 2, n))  # [[S_c cos, S_s sin], [S_s cos, S_c sin]] later
-        self.p0: Array = prod[0]
-        self.p1: Array = prod[1]
-        self.p00, self.p01 = prod[0, 0], prod[0, 1]
-        self.p10, self.p11 = prod[1, 0], prod[1, 1]
-        np.multiply(ax, bx, out=self.p00)
-        np.multiply(ay, by, out=self.p01)
-        np.add(self.p00, self.p01, out=coef[0, 0])  # S_c,k = a_x b_x + a_y b_y
-        np.multiply(ax, by, out=self.p00)
-        np.multiply(ay, bx, out=self.p01)
-        np.subtract(self.p00, self.p01, out=coef[0, 1])  # S_s,k = a_x b_y − a_y b_x
-        coef[1] = coef[0, ::-1]
-        self.c0: Array = coef[0]
-        self.c1: Array = coef[1]
-        self.e: Array = np.empty(n)  # angle, rad
-        self.cs: Array = np.empty((2, n))
-        self.cos: Array = self.cs[0]
-        self.sin: Array = self.cs[1]
-        self.fg: Array = np.empty((3, n))  # f, g, f τ
-        self.fg2: Array = self.fg[:2]
-        self.f: Array = self.fg[0]
-        self.g: Array = self.fg[1]
-        self.ft: Array = self.fg[2]
-
-    def alignment(self, tau: Array | None = None, maybe_zero: bool = False) -> list[float]:
-        """Sums of ``f_k = S_c,k cos e_k + S_s,k sin e_k``, ``g_k = S_s,k cos e_k − S_c,k sin
-        e_k`` (and of ``f_k τ_k`` if ``tau`` is given) at the angles in ``e``; the terms stay
-        in ``f``, ``g``, ``ft``. ``maybe_zero``: first look whether every angle is ±0."""
-        if maybe_zero and not self.e.any():
-            # cos ±0 is 1 and sin ±0 is ±0 exactly (C99 Annex F): libm's values, no calls
-            self.cos.fill(1.0)
-            np.copyto(self.sin, self.e)
-        else:
-            np.cos(self.e, out=self.cos)
-            np.sin(self.e, out=self.sin)
-        np.multiply(self.c0, self.cs, out=self.p0)  # (2, n) halves: contiguous, one loop each
-        np.multiply(self.c1, self.cs, out=self.p1)
-        np.add(self.p00, self.p01, out=self.f)
-        np.subtract(self.p10, self.p11, out=self.g)
-        if tau is None:
-            sums: list[float] = np.add.reduce(self.fg2, axis=1).tolist()
-        else:
-            np.multiply(self.f, tau, out=self.ft)
-            sums = np.add.reduce(self.fg, axis=1).tolist()
-        return sums
-
-    @staticmethod
-    def horizontal_energy(a: Array, b: Array) -> float:
-        """``float(np.sum(a[:, :2] ** 2) + np.sum(b[:, :2] ** 2))``: numpy's pairwise sums over
-        the squares in their memory order, which for row-major arrays is sample-major."""
-        n = len(a)
-        if not all(n < 2 or x.strides[0] >= x.strides[1] > 0 for x in (a, b)):
-            # e.g. column-major: the squares (and their sum) would be ordered by column
-            return float(np.sum(a[:, :2] ** 2) + np.sum(b[:, :2] ** 2))
-        sq = np.empty((2, n, 2))
-        for x, out in ((a, sq[0]), (b, sq[1])):
-            np.square(x[:, 0], out=out[:, 0])
-            np.square(x[:, 1], out=out[:, 1])
-        sa, sb = np.add.reduce(sq.reshape(2, 2 * n), axis=1).tolist()
-        total: float = sa + sb
-        return total
+    sw = np.ones(n)  # square roots of the samples' weights
+    ac = np.empty((n, 3))  # a corrected for the sensor errors, weighted
+    sc = np.empty(n)  # per-sample S_c,k and S_s,k
+    ss = np.empty(n)
+    jx = np.empty((n, 3))
+    mat = np.empty((6, 6))
+    rhs = np.empty(6)
+    d = r = sd = sr = 0.0
+    jtj = np.zeros((6, 6))
+    # cos and sin of the prior drift's angles ρ_prior τ (every fit's start), and of the
+    # current angles d + ρ τ: moved by angle addition, with a series for small moves
+    cos0, sin0 = np.ones(n), np.zeros(n)
+    if rate0 != 0.0:
+        for k in range(n):
+            cos0[k], sin0[k] = math.cos(rate0 * tau[k]), math.sin(rate0 * tau[k])
+    cs, sn = np.empty(n), np.empty(n)
+    n_pass = 2 if block_s > 0.0 else 1
+    for pas in range(n_pass):
+        if pas == 1:
+            # block weights from the unweighted residual at the first fit
+            nb = int((tau[n - 1] - tau[0]) // block_s) + 1
+            if nb < 3:
+                break
+            cnt = np.zeros(nb)
+            msq = np.zeros(nb)
+            blk = np.empty(n, np.int64)
+            for k in range(n):
+                c, s = cs[k], -sn[k]  # of −(d + r τ): the last fit's angles
+                ex = c * b[k, 0] - s * b[k, 1] - a[k, 0]
+                ey = s * b[k, 0] + c * b[k, 1] - a[k, 1]
+                if has_jac:
+                    for i in range(2):
+                        v = 0.0
+                        for j in range(6):
+                            v += jac[3 * k + i, j] * x[j]
+                        if i == 0:
+                            ex -= v
+                        else:
+                            ey -= v
+                ib = int((tau[k] - tau[0]) // block_s)
+                blk[k] = ib
+                cnt[ib] += 1.0
+                msq[ib] += ex * ex + ey * ey
+            m = 0
+            for ib in range(nb):
+                if cnt[ib] > 0:
+                    msq[ib] /= cnt[ib]
+                    m += 1
+            filled = np.empty(m)
+            m = 0
+            for ib in range(nb):
+                if cnt[ib] > 0:
+                    filled[m] = msq[ib]
+                    m += 1
+            med = np.median(filled)
+            if not med > 0.0:
+                break
+            any_weighted = False
+            wb = np.empty(nb)
+            for ib in range(nb):
+                wb[ib] = min(1.0, med / max(msq[ib], 1e-300))
+                if cnt[ib] > 0 and wb[ib] != 1.0:
+                    any_weighted = True
+            if not any_weighted:
+                break
+            for k in range(n):
+                sw[k] = math.sqrt(wb[blk[k]])
+        if has_jac:
+            # jtj of the weighted Jacobian, with the weighted residual's information
+            for i in range(6):
+                for j in range(6):
+                    mat[i, j] = 0.0
+            for k in range(n):
+                w2 = sw[k] * sw[k]
+                for q in range(3):
+                    row = 3 * k + q
+                    for i in range(6):
+                        ji = jac[row, i] * w2
+                        for j in range(i, 6):
+                            mat[i, j] += ji * jac[row, j]
+            jtj[:, :] = mat
+        for _alt in range(n_alt):
+            for k in range(n):
+                for q in range(3):
+                    v = 0.0
+                    if has_jac:
+                        for j in range(6):
+                            v += jac[3 * k + q, j] * x[j]
+                    jx[k, q] = sw[k] * v
+                    ac[k, q] = sw[k] * a[k, q] + jx[k, q]
+            # drift fit on (ac, sw b)
+            e2 = 0.0
+            for k in range(n):
+                w = sw[k]
+                ax, ay, bx, by = ac[k, 0], ac[k, 1], w * b[k, 0], w * b[k, 1]
+                sc[k] = ax * bx + ay * by
+                ss[k] = ax * by - ay * bx
+                e2 += ax * ax + ay * ay + bx * bx + by * by
+            s0 = s1 = 0.0
+            for k in range(n):
+                s0 += sc[k] * cos0[k] + ss[k] * sin0[k]
+                s1 += ss[k] * cos0[k] - sc[k] * sin0[k]
+            d, r = math.atan2(s1, s0), rate0
+            cd, sdd = math.cos(d), math.sin(d)
+            for k in range(n):  # the start's angles turned by d
+                cs[k] = cos0[k] * cd - sin0[k] * sdd
+                sn[k] = sin0[k] * cd + cos0[k] * sdd
+            dc, rc = d, r  # the angles cs, sn hold: dc + rc τ
+            h00 = h01 = h11 = det = 0.0
+            for it in range(n_iter + 1):
+                if it > 0:
+                    # move the angles by ε_k = Δd + Δρ τ_k to d + r τ (also after the last
+                    # step: the residual uses them)
+                    dd, dr = d - dc, r - rc
+                    if max(abs(dd + dr * tau[0]), abs(dd + dr * tau[n - 1])) <= 0.05:
+                        # Taylor series to ε⁹ / ε¹⁰: error below 1e-21 for |ε| ≤ 0.05
+                        for k in range(n):
+                            eps = dd + dr * tau[k]
+                            q2 = eps * eps
+                            se = eps * (
+                                1.0
+                                - q2
+                                / 6.0
+                                * (1.0 - q2 / 20.0 * (1.0 - q2 / 42.0 * (1.0 - q2 / 72.0)))
+                            )
+                            ce = 1.0 - q2 / 2.0 * (
+                                1.0
+                                - q2
+                                / 12.0
+                                * (1.0 - q2 / 30.0 * (1.0 - q2 / 56.0 * (1.0 - q2 / 90.0)))
+                            )
+                            c, s = cs[k], sn[k]
+                            cs[k] = c * ce - s * se
+                            sn[k] = s * ce + c * se
+                    else:
+                        for k in range(n):
+                            e = d + r * tau[k]
+                            cs[k], sn[k] = math.cos(e), math.sin(e)
+                    dc, rc = d, r
+                if it == n_iter:
+                    break
+                sf = sg = sft = sgt = sftt = 0.0
+                for k in range(n):
+                    c, s = cs[k], sn[k]
+                    f = sc[k] * c + ss[k] * s
+                    g = ss[k] * c - sc[k] * s
+                    sf += f
+                    sg += g
+                    sft += f * tau[k]
+                    sgt += g * tau[k]
+                    sftt += f * tau[k] * tau[k]
+                resid = max(e2 - 2.0 * sf, 1e-12)
+                kappa = n_eff / n / (resid / (2.0 * n))
+                g0 = kappa * sg
+                g1 = kappa * sgt - (r - rate0) * inv_prior
+                h00, h01 = kappa * sf, kappa * sft
+                h11 = kappa * sftt + inv_prior
+                det = h00 * h11 - h01 * h01
+                if not (math.isfinite(det) and det > 0.0):
+                    break
+                d += (h11 * g0 - h01 * g1) / det
+                r += (h00 * g1 - h01 * g0) / det
+            if det != 0.0 and math.isfinite(det):
+                sd, sr = math.sqrt(max(h11 / det, 0.0)), math.sqrt(max(h00 / det, 0.0))
+            else:
+                sd, sr = math.inf, sig_rho
+            d = math.atan2(math.sin(d), math.cos(d))
+            if not has_jac:
+                break
+            # sensor errors: the residual in frame I, Rz(−δ_k) b_k − a_k = jac_k x + noise
+            rr = 0.0
+            for i in range(6):
+                rhs[i] = 0.0
+            for k in range(n):
+                c, s = cs[k], -sn[k]  # of −(d + r τ)
+                w = sw[k]
+                bx, by = w * b[k, 0], w * b[k, 1]
+                y0 = c * bx - s * by - w * a[k, 0]
+                y1 = s * bx + c * by - w * a[k, 1]
+                y2 = w * b[k, 2] - w * a[k, 2]
+                for q in range(3):
+                    y = y0 if q == 0 else (y1 if q == 1 else y2)
+                    u = y - jx[k, q]
+                    rr += u * u
+                    wj = w  # the weighted Jacobian's row: jac * sw
+                    for i in range(6):
+                        rhs[i] += wj * jac[3 * k + q, i] * y
+            var = max(rr / (3 * n), 1e-8) * n / n_eff
+            # Cholesky of jtj / var + prior (symmetric positive definite), then solve
+            for i in range(6):
+                for j in range(i, 6):
+                    mat[i, j] = jtj[i, j] / var + (prior[i] if i == j else 0.0)
+                rhs[i] /= var
+            for j in range(6):
+                v = mat[j, j]
+                for q in range(j):
+                    v -= mat[q, j] * mat[q, j]
+                mat[j, j] = math.sqrt(v)
+                for i in range(j + 1, 6):
+                    v = mat[j, i]
+                    for q in range(j):
+                        v -= mat[q, j] * mat[q, i]
+                    mat[j, i] = v / mat[j, j]
+            for i in range(6):  # Uᵀ z = rhs
+                v = rhs[i]
+                for q in range(i):
+                    v -= mat[q, i] * rhs[q]
+                rhs[i] = v / mat[i, i]
+            for i in range(5, -1, -1):  # U x = z
+                v = rhs[i]
+                for q in range(i + 1, 6):
+                    v -= mat[i, q] * x[q]
+                x[i] = v / mat[i, i]
+    out[0], out[1], out[2], out[3] = d, r, sd, sr
 
 
 def estimate_lag(w: Window, params: HeadingParams, dt: float) -> tuple[float, float]:
@@ -420,78 +600,6 @@ def _estimate_lag(
         return 0.0, 0.0
     step = lags[1] - lags[0]
     return float(lags[k] + 0.5 * step * (c0 - c2) / curv), float(curv / max(c1, 1e-12))
-
-
-def _fit_with_sensor_errors(
-    state: HeadingState,
-    a: Array,
-    b: Array,
-    tau: Array,
-    jac: Array,
-    rate0: float,
-    params: HeadingParams,
-) -> tuple[float, float, float, Array | None]:
-    """Heading and drift jointly with the accelerometer bias and the lever-arm error.
-
-    A sensor-frame accelerometer bias β appears in frame I as ``Σ_j β_j c_j(t)`` (c_j the
-    sensor axes in I, high-passed like the 6D filter's levelling), and an error Δr of the
-    assumed IMU→elbow vector as ``Σ_j Δr_j c̈_j(t)``; both are linear in their unknowns once
-    δ(t) is fixed, so the fit alternates the drift fit with a regularised least squares.
-    ``jac`` (3n, 6) is their :func:`_jacobian`. Returns ``(δ0, ρ, std δ0, residual)``, the
-    residual :func:`_derotated_residual` at that δ0 and ρ (None if no alternation ran); the
-    fitted errors go to ``state``.
-    """
-    n = len(a)
-    jtj = jac.T @ jac
-    prior = _prior_diag(params.acc_bias_prior, params.lever_prior)
-    x = np.concatenate((state.acc_bias, state.lever_error))
-    span = float(tau[-1] - tau[0]) if n > 1 else 0.0
-    n_eff = max(1.0, span * params.effective_rate_hz)
-    d0, rate, sd = 0.0, rate0, math.inf
-    res: Array | None = None
-    # once converged the previous window's errors are a warm start: one alternation is enough
-    for _ in range(1 if state.converged else params.sensor_fit_iterations):
-        jx = jac @ x  # used twice (the same product, so the same bits)
-        ac = a + jx.reshape(n, 3)
-        d0, rate, sd, _ = fit_drift(ac, b, tau, rate0, params, n_iter=3)
-        # residual in frame I: Rz(−δ_k) b_k − a_k = jac_k x + noise
-        res = _derotated_residual(d0, rate, tau, a, b)
-        y = res.reshape(-1)
-        r = y - jx
-        var = max(float(r @ r) / (3 * n), 1e-8) * n / n_eff
-        x = np.asarray(np.linalg.solve(jtj / var + prior, (jac.T @ y) / var), np.float64)
-    state.acc_bias, state.lever_error = x[:3].copy(), x[3:].copy()
-    return d0, rate, sd, res
-
-
-def _derotated_residual(d0: float, rate: float, tau: Array, a: Array, b: Array) -> Array:
-    """(n, 3) ``Rz(−(d0 + ρ τ_k)) b_k − a_k`` (m/s²; ``d0`` rad, ``rate`` rad/s, ``tau`` (n,)
-    s): with ``δ = −(d0 + ρ τ)``, ``(cos δ b_x − sin δ b_y, sin δ b_x + cos δ b_y, b_z) − a``,
-    those operations in that order, written into one array (not three columns, a stack and
-    a difference)."""
-    n = len(b)
-    ang = np.multiply(rate, tau)
-    np.add(d0, ang, out=ang)
-    np.negative(ang, out=ang)
-    c, s = np.cos(ang), np.sin(ang)
-    bx, by = b[:, 0], b[:, 1]
-    out = np.empty((n, 3))
-    tmp = np.empty(n)
-    # 1-D operations (small multi-dimensional views make numpy copy through buffers)
-    np.subtract(np.multiply(c, bx, out=ang), np.multiply(s, by, out=tmp), out=out[:, 0])
-    np.add(np.multiply(s, bx, out=ang), np.multiply(c, by, out=tmp), out=out[:, 1])
-    out[:, 2] = b[:, 2]
-    np.subtract(out, a, out=out)
-    return out
-
-
-@functools.lru_cache(maxsize=8)
-def _prior_diag(acc_bias_prior: float, lever_prior: float) -> Array:
-    """``diag`` of the sensor errors' prior information (read-only: it is shared)."""
-    prior = np.concatenate((np.full(3, 1.0 / acc_bias_prior**2), np.full(3, 1.0 / lever_prior**2)))
-    out = np.diag(prior)
-    out.setflags(write=False)
-    return out
 
 
 # cl's columns (x, y, z in I of the three sensor axes, then of their 2nd derivatives) in the
@@ -614,24 +722,22 @@ def update_improved(
             delay = _delay_index(ts, state.lag)
             a = _delay_apply(a, *delay)
     rate0 = state.rate if state.converged else 0.0
-    jac = None
+    cl = None
     if params.estimate_sensor_errors and w.cl is not None:
         cl = _rows(w.cl, v, all_valid)
-        jac = _jacobian(cl if delay is None else _delay_apply(cl, *delay))
+        if delay is not None:
+            cl = _delay_apply(cl, *delay)
     # the sensor errors need cl not all zero (as np.any(cl); a nonzero first sample answers)
-    if jac is None or not jac.any():
-        jac = None
-    d0, rate, sd, res = _fit(state, a, b, tau, jac, rate0, params)
-    if params.block_s > 0:
-        # Heteroscedastic refit: stretches the model does not explain (above all the 6D
-        # filter's levelling transient while its gyro-bias estimate settles, whose leak of
-        # gravity grows with the bias) count with the weight their own residual gives them,
-        # instead of inflating the uncertainty of the whole window until they leave it.
-        sw = _block_weights(d0, rate, tau, a, b, jac, state, params.block_s, res)
-        if sw is not None:
-            a, b = a * sw[:, None], b * sw[:, None]
-            jac = None if jac is None else jac * np.repeat(sw, 3)[:, None]
-            d0, rate, sd, _ = _fit(state, a, b, tau, jac, rate0, params)
+    if cl is None or not cl.any():
+        cl = None
+    x = np.concatenate((state.acc_bias, state.lever_error))
+    n_alt = 1 if state.converged else params.sensor_fit_iterations  # warm start once converged
+    par = _kernel_params(params, rate0, 4 if cl is None else 3, n_alt, params.block_s)
+    out = np.empty(4)
+    _fit_kernel(a, b, tau, _NO_CL if cl is None else cl, x, par, out)
+    if cl is not None:
+        state.acc_bias, state.lever_error = x[:3].copy(), x[3:].copy()
+    d0, rate, sd = float(out[0]), float(out[1]), float(out[2])
     d = wrap(d0 + rate * lag_s)
     prev = predict(state, t)
     state.n_counted += 1
@@ -649,60 +755,6 @@ def update_improved(
         ):
             state.converged, state.t_converged = True, t
     return True
-
-
-def _fit(
-    state: HeadingState,
-    a: Array,
-    b: Array,
-    tau: Array,
-    jac: Array | None,
-    rate0: float,
-    params: HeadingParams,
-) -> tuple[float, float, float, Array | None]:
-    """The drift fit, with the sensor errors when ``jac`` is given: ``(δ0, ρ, std δ0)`` and,
-    with the sensor errors, the residual at them (:func:`_fit_with_sensor_errors`)."""
-    if jac is not None:
-        return _fit_with_sensor_errors(state, a, b, tau, jac, rate0, params)
-    d0, rate, sd, _ = fit_drift(a, b, tau, rate0, params)
-    return d0, rate, sd, None
-
-
-def _block_weights(
-    d0: float,
-    rate: float,
-    tau: Array,
-    a: Array,
-    b: Array,
-    jac: Array | None,
-    state: HeadingState,
-    block_s: float,
-    residual: Array | None = None,
-) -> Array | None:
-    """Square roots of per-sample weights (n,) from the fit's horizontal residual in blocks of
-    ``block_s``: ``min(1, median / block's mean)`` of the blocks' mean squared residual, so a
-    block noisier than the typical one counts as its own noise warrants. None when every
-    weight is 1. ``residual``: :func:`_derotated_residual` of these arguments if the fit made
-    it already (its trigonometry is a good part of the cost); it is overwritten."""
-    r = _derotated_residual(d0, rate, tau, a, b) if residual is None else residual
-    if jac is not None:
-        x = np.concatenate((state.acc_bias, state.lever_error))
-        r -= (jac @ x).reshape(-1, 3)
-    e2 = r[:, 0] ** 2 + r[:, 1] ** 2
-    blk = ((tau - tau[0]) // block_s).astype(np.intp)
-    nb = int(blk[-1]) + 1
-    if nb < 3:
-        return None
-    count = np.bincount(blk, minlength=nb)
-    mean = np.bincount(blk, weights=e2, minlength=nb) / np.maximum(count, 1)
-    med = _median(mean[count > 0])
-    if not med > 0.0:
-        return None
-    w = np.minimum(1.0, med / np.maximum(mean, 1e-300))
-    if bool(np.all(w[count > 0] == 1.0)):
-        return None
-    out: Array = np.sqrt(w)[blk]
-    return out
 
 
 def predict(state: HeadingState, t: float) -> float | None:

@@ -16,7 +16,7 @@ import numba
 import numpy as np
 import pytest
 
-from estimators import aot, filters, imu_stage, jit, peaks, rows
+from estimators import aot, filters, heading, imu_stage, jit, peaks, rows
 from estimators.output import COL, NCOL
 
 RNG = np.random.default_rng(3)
@@ -51,7 +51,14 @@ def pair(built: ModuleType, fn: Any) -> tuple[Callable[..., Any], Callable[..., 
 
 def test_every_kernel_is_built_and_declared_once() -> None:
     names = sorted(k.fn.__name__ for k in aot.kernels().values())
-    assert names == ["_peaks", "_sosfilt", "_store", "_weighted_sums", "compute"]
+    assert names == [
+        "_fit_kernel",
+        "_peaks",
+        "_sosfilt",
+        "_store",
+        "_weighted_sums",
+        "compute",
+    ]
 
 
 def test_sosfilt_equals_the_jit(built: ModuleType) -> None:
@@ -79,6 +86,24 @@ def test_weighted_sums_equal_the_jit(built: ModuleType) -> None:
         start = np.sort(RNG.integers(0, 50, size=n))
         for xs in (x[:, :c].copy(), x[:, 1:]):  # C order and a strided view
             assert compiled(w, start, xs).tobytes() == jitted(w, start, xs).tobytes()
+
+
+def test_heading_fit_equals_the_jit(built: ModuleType) -> None:
+    compiled, jitted = pair(built, heading._fit_kernel)
+    params = heading.HeadingParams()
+    for n, with_cl, block_s in [(2, False, 0.0), (500, False, 4.0), (1000, True, 4.0)]:
+        tau = np.linspace(-40.0, 0.0, n)
+        a = RNG.normal(size=(n, 3))
+        # a noisier stretch, so that the block refit weights it
+        b = a[:, [1, 0, 2]] + RNG.normal(size=(n, 3)) * np.where(tau < -30.0, 1.0, 0.05)[:, None]
+        cl = RNG.normal(size=(n, 18)) if with_cl else heading._NO_CL
+        par = heading._kernel_params(params, 0.001, 3, 2, block_s)
+        results = []
+        for fn in (compiled, jitted):
+            x, out = np.full(6, 0.01), np.empty(4)
+            fn(a, b, tau, cl, x, par, out)
+            results.append(x.tobytes() + out.tobytes())
+        assert results[0] == results[1]
 
 
 def test_peaks_equal_the_jit(built: ModuleType) -> None:
