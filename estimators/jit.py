@@ -258,26 +258,28 @@ def _scipy_blas() -> None:
     here from its file on its own, unless ``scipy.linalg`` is imported already; when SciPy's
     layout differs, nothing is done (the lookup then imports them the usual way)."""
     global _blas_ready
-    _blas_ready = True
-    if "scipy.linalg" in sys.modules:
-        return
-    spec = importlib.util.find_spec("scipy")
-    if spec is None or not spec.submodule_search_locations:
-        return
-    base = Path(next(iter(spec.submodule_search_locations))) / "linalg"
-    for name in ("cython_blas", "cython_lapack"):
-        full = f"scipy.linalg.{name}"
-        files = [base / (name + s) for s in importlib.machinery.EXTENSION_SUFFIXES]
-        path = next((f for f in files if f.is_file()), None)
-        ext = importlib.util.spec_from_file_location(full, path) if path else None
-        if full in sys.modules or ext is None or ext.loader is None:
-            continue
-        module = importlib.util.module_from_spec(ext)
-        sys.modules[full] = module
-        try:
-            ext.loader.exec_module(module)
-        except ImportError:
-            del sys.modules[full]
+    with _LOCK:  # once, even when a worker's threads make their first calls together
+        if _blas_ready or "scipy.linalg" in sys.modules:
+            _blas_ready = True
+            return
+        spec = importlib.util.find_spec("scipy")
+        base = Path(next(iter(spec.submodule_search_locations or ()), "")) if spec else None
+        for name in ("cython_blas", "cython_lapack"):
+            full = f"scipy.linalg.{name}"
+            if base is None or full in sys.modules:
+                continue
+            files = [base / "linalg" / (name + s) for s in importlib.machinery.EXTENSION_SUFFIXES]
+            path = next((f for f in files if f.is_file()), None)
+            ext = importlib.util.spec_from_file_location(full, path) if path else None
+            if ext is None or ext.loader is None:
+                continue
+            module = importlib.util.module_from_spec(ext)
+            sys.modules[full] = module
+            try:
+                ext.loader.exec_module(module)
+            except ImportError:
+                del sys.modules[full]
+        _blas_ready = True
 
 
 def aot(signature: str, blas: bool = False) -> Callable[[_Fn], _Fn]:
