@@ -14,9 +14,9 @@ COPY estimators estimators
 COPY simulator simulator
 COPY protocol protocol
 COPY evaluation evaluation
-# editable: the backend serves frontend/dist from beside its sources. The robot pipeline's
-# kernels are compiled ahead of time (estimators/aot.py: `rehab analyze` starts without
-# numba), with a C compiler present for that step only
+# editable: the backend serves frontend/dist from beside its sources. The kernels (robot
+# pipeline, wearable tracker) are compiled ahead of time (estimators/aot.py: `rehab analyze`
+# starts without numba), with a C compiler present for that step only
 RUN pip install --no-cache-dir -c constraints.txt -e . \
     && apt-get update -qq && apt-get install -y -qq --no-install-recommends gcc libc6-dev \
     && python -m estimators.aot \

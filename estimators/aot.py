@@ -1,6 +1,8 @@
-"""Build ``estimators._kernels``: the robot pipeline's kernels (those declared with
-:func:`estimators.jit.aot`) compiled ahead of time by numba's ``pycc`` from their Python
-source, into an extension module that needs numpy only (see :mod:`estimators.jit` for why).
+"""Build ``estimators._kernels``: the kernels declared with :func:`estimators.jit.aot` (the
+robot pipeline's, the wearable tracker's with the helpers they call) compiled ahead of time
+by numba's ``pycc`` from their Python source, into an extension module that needs numpy only
+(see :mod:`estimators.jit` for why). About 1.5 min of CPU on a first build (the helpers
+compiled by numba's JIT, then the module), less with numba's cache warm.
 
     python -m estimators.aot [--check] [--out DIR]
 
@@ -30,6 +32,8 @@ KERNEL_MODULES = (
     "estimators.imu_stage",
     "estimators.peaks",
     "estimators.rows",
+    "estimators.wearable.kernel",
+    "estimators.wearable.steps",
 )
 PACKAGE_DIR = Path(__file__).resolve().parent
 
@@ -52,10 +56,12 @@ def build(out_dir: Path) -> Path:
         warnings.simplefilter("ignore")  # pycc's pending deprecation
         pycc: Any = importlib.import_module("numba.pycc")  # untyped
 
+    todo = kernels()
+    jit.load()  # the helpers the kernels call as numba's dispatchers
     name = jit.MODULE.rsplit(".", 1)[-1]
     cc = pycc.CC(name, source_module=__name__)
     cc.output_dir = str(out_dir)
-    for k in kernels().values():
+    for k in todo.values():
         cc.export(k.export, k.signature)(k.fn)
     cc.compile()  # for any x86-64 CPU (pycc's default target), so an image runs anywhere
     return out_dir / str(cc.output_file)

@@ -110,6 +110,42 @@ def test_analyze_with_kernels_built_ahead_of_time(rec: Path, tmp_path: Path) -> 
         assert (tmp_path / "aot" / f).read_bytes() == (tmp_path / "jit" / f).read_bytes()
 
 
+@pytest.mark.parametrize("camera", [False, True])
+def test_wearable_analyze_with_kernels_built_ahead_of_time(tmp_path: Path, camera: bool) -> None:
+    """The same for a wearable session (the tracker's kernels with the helpers they call):
+    no numba, the same joints.csv and report.json as numba's JIT (REHAB_AOT=0)."""
+    sim = ["simulate", "--mode", "wearable", "--duration", "20", "--out", str(tmp_path / "s")]
+    assert main(sim if camera else [*sim, "--no-camera"]) == 0
+    s = tmp_path / "s"
+    code = (
+        "import sys; from backend.cli import main; "
+        f"main(['analyze', {str(s / 'recording.jsonl.gz')!r}, '--params', "
+        f"{str(s / 'params.json')!r}, '--out', sys.argv[1]]); "
+        "from estimators import jit; from estimators.wearable import kernel, steps; "
+        "print(all(jit.uses_aot(k) for k in (steps.feed, kernel.pose)), "
+        "'numba' in sys.modules, 'scipy.linalg' in sys.modules)"
+    )
+    for out, aot_env in (("aot", "1"), ("jit", "0")):
+        run = subprocess.run(
+            [sys.executable, "-c", code, str(tmp_path / out)],
+            capture_output=True,
+            text=True,
+            check=True,
+            env={**os.environ, "REHAB_AOT": aot_env},
+        )
+        used, numba, linalg = run.stdout.splitlines()[-1].split()
+        if aot_env == "1" and used == "False":
+            pytest.skip(
+                "kernels not built, or built from an older source: python -m estimators.aot"
+            )
+        # the built module's BLAS/LAPACK from SciPy's two Cython modules alone (jit._scipy_blas)
+        assert (used, numba, linalg) == (
+            ("True", "False", "False") if aot_env == "1" else ("False", "True", "True")
+        )
+    for f in ("joints.csv", "report.json"):
+        assert (tmp_path / "aot" / f).read_bytes() == (tmp_path / "jit" / f).read_bytes()
+
+
 def test_analyze_is_deterministic(rec: Path) -> None:
     main(["analyze", str(rec / "recording.jsonl.gz"), "--out", str(rec / "a")])
     main(["analyze", str(rec / "recording.jsonl.gz"), "--out", str(rec / "b")])

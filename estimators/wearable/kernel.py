@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from estimators.jit import jit, jit_inline
+from estimators.jit import aot, jit, jit_inline
 
 G = 9.81
 HALF_PI = 0.5 * math.pi
@@ -69,7 +69,7 @@ def mv(a: Any, v: Any) -> Any:
     return out
 
 
-@jit
+@aot("Tuple((f8[:, ::1], f8[:, ::1], f8[:, ::1], f8[::1], f8[::1]))(f8[::1], f8, f8)")
 def pose(theta: Any, lu: float, lf: float) -> Any:
     """The DH chain (eqs. 10, 11; dh.dh_table's rows) for ``θ`` (5,) rad.
 

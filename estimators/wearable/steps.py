@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from estimators.jit import jit
+from estimators.jit import aot, jit
 from estimators.wearable import kernel, mounting
 
 # row flags (the tracker's public names re-export these)
@@ -416,7 +416,16 @@ def track(
     return x, P, out
 
 
-@jit
+# ahead of time (:mod:`estimators.aot`): the message's arrays as :mod:`.tracker` holds them
+_FEED = (
+    "Tuple((f8[::1], f8[:, ::1], f8[:, ::1]))(i8, f8[:], f8[:, :], f8[:, :], b1, f8[:, ::1],"
+    " f8[:, ::1], f8[:, ::1], i8[::1], f8[::1], f8[::1], f8[:, ::1], f8[::1], f8[::1], f8[::1],"
+    " i8[::1], b1[:, ::1], i8[::1], f8[::1], f8[::1], f8[:, ::1], i8[:, ::1], f8[:, :, ::1],"
+    " f8[:, ::1], f8[::1], f8, f8, f8)"
+)
+
+
+@aot(_FEED, blas=True)
 def feed(
     kind: int,
     t: Any,
@@ -441,12 +450,20 @@ def feed(
     P0: Any,
     mis: Any,
     basis: Any,
+    terms: Any,
+    doubt: Any,
+    vertical: float,
+    rotation: float,
+    tau: float,
 ) -> Any:
-    """One message through the EKF: :func:`pair`, then :func:`track` (one call from Python)."""
+    """One message through the EKF: :func:`pair`, :func:`track`, then :func:`widen` of its
+    rows (``terms`` … ``tau`` as it takes them): one call from Python."""
     pt, z, avail, flags, fix = pair(kind, t, u, v, upper, fore, cam, ptr, t_seen, tp, counts, final)
-    return track(
+    x, P, out = track(
         x, P, mon, nis_buf, tp, counts, pt, z, have, avail, flags, fix, ia, fa, x0, P0, mis, basis
     )
+    widen(out, terms, doubt, vertical, rotation, tau)
+    return x, P, out
 
 
 @jit

@@ -219,11 +219,12 @@ def _run(
     model = state.model
     ia, fa = model.packed
     x0, P0 = state.x0, state.P0
-    if params.filter == "ekf":
+    if params.filter == "ekf":  # with the σ's widening (one call per message)
         state.x, state.P, out = steps.feed(
             kind, t, u, v, final, upper, fore, cam, state.ptr, state.t_seen, state.x, state.P,
             state.mon, state.nis_buf, state.tp, state.counts, state.have, ia, fa, x0, P0,
-            model.mis_idx, model.mis_basis,
+            model.mis_idx, model.mis_basis, state.widen, state.doubt,
+            params.sigma_pronation_vertical_deg, params.doubt_rotation_deg, params.doubt_tau_s,
         )  # fmt: skip
     else:  # the UKF's update in Python between the same bookkeeping
         t, z, avail, flags, fix = steps.pair(
@@ -249,8 +250,8 @@ def _run(
                 ak, int(flags[k]), float(fix[k]), nis, ia, fa, out, k,
             )  # fmt: skip
         state.x, state.P = x, P
+        _widen(params, state, out)
     _count(state)
-    _widen(params, state, out)
     return _rows(out)
 
 

@@ -2,11 +2,13 @@
 same Python source: bit for bit on random and structured data; a wrong argument is refused,
 not read as wrong memory; a changed source is never served by the module built from the old one.
 
-Uses the module built in the package when it is up to date, else builds one (~20 s)."""
+Uses the module built in the package when it is up to date, else builds one (~90 s)."""
 
 from __future__ import annotations
 
 import importlib.util
+import os
+import subprocess
 import sys
 from collections.abc import Callable
 from types import ModuleType
@@ -18,6 +20,9 @@ import pytest
 
 from estimators import aot, filters, heading, imu_stage, jit, peaks, rows
 from estimators.output import COL, NCOL
+from estimators.wearable import kernel, steps, tracker
+from estimators.wearable.params import WearableParams
+from simulator import wearable as w
 
 RNG = np.random.default_rng(3)
 
@@ -46,6 +51,7 @@ def pair(built: ModuleType, fn: Any) -> tuple[Callable[..., Any], Callable[..., 
     """(ahead of time behind its argument check, numba's JIT) of the kernel ``fn``."""
     (k,) = [k for k in aot.kernels().values() if k.fn.__name__ == fn.__name__]
     compiled = jit._checked(getattr(built, k.export), k.signature, k.fn.__name__, k.export)
+    jit.load()  # the helpers it calls as numba's dispatchers
     return compiled, numba.njit(k.fn)
 
 
@@ -58,6 +64,8 @@ def test_every_kernel_is_built_and_declared_once() -> None:
         "_store",
         "_weighted_sums",
         "compute",
+        "feed",
+        "pose",
     ]
 
 
@@ -197,3 +205,59 @@ def test_a_changed_source_or_signature_is_not_served(built: ModuleType) -> None:
         assert not jit.uses_aot(jit.aot(k.signature)(_sosfilt))  # numba's JIT instead
     finally:
         del jit.KERNELS[edited]
+
+
+def test_pose_equals_the_jit(built: ModuleType) -> None:
+    compiled, jitted = pair(built, kernel.pose)
+    for theta in RNG.uniform(-3.5, 3.5, size=(50, 5)):
+        lu, lf = RNG.uniform(0.2, 0.4, size=2)
+        for a, j in zip(compiled(theta, lu, lf), jitted(theta, lu, lf), strict=True):
+            assert a.dtype == j.dtype and a.flags.c_contiguous and a.tobytes() == j.tobytes()
+
+
+@pytest.mark.parametrize("camera", [False, True])
+def test_the_wearable_tracker_equals_the_jit(
+    built: ModuleType, camera: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """steps.feed (the pairing, the EKF with the mounting states, the monitors, the σ's
+    widening) over a whole session, through the tracker: the same bytes as numba's JIT."""
+    sim = w.simulate(w.WearableSimConfig(move="rom", duration_s=20.0, seed=4, camera=camera))
+    inputs = w.tracker_inputs(sim.messages)
+    blocks = []
+    for variant in (0, 1):
+        monkeypatch.setattr(steps, "feed", pair(built, steps.feed)[variant])
+        for side in ("right", "left"):  # the left arm's inputs are mirrored copies
+            p = WearableParams.from_json(sim.params, side=side)
+            rows, state = tracker.run(p, inputs)
+            block = rows.block  # type: ignore[attr-defined]
+            blocks.append((block.tobytes(), state.x.tobytes(), state.P.tobytes()))
+            if side == "right":
+                assert block.shape[1] > 1000 and np.isfinite(block[1:6]).all()
+    assert blocks[:2] == blocks[2:]
+
+
+def test_a_changed_helper_is_not_served(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A kernel's key covers every source of the package (the helpers it calls): an edit
+    anywhere gives every kernel a new name, which an older module does not hold."""
+    k = next(k for k in aot.kernels().values() if k.fn.__name__ == "feed")
+    assert jit.export_name(k.fn, k.signature) == k.export
+    monkeypatch.setattr(jit, "sources_digest", lambda: "0" * 16)
+    assert jit.export_name(k.fn, k.signature) != k.export
+
+
+def test_the_helpers_do_not_import_numba() -> None:
+    """Importing the wearable tracker (its helpers declared with ``jit``) loads no numba:
+    numba comes with the first call of a kernel the built module does not hold."""
+    code = (
+        "import sys; from estimators.wearable import kernel, mounting, steps, tracker; "
+        "print('numba' in sys.modules)"
+    )
+    for env in ("0", "1"):
+        out = subprocess.run(
+            [sys.executable, "-c", code],
+            capture_output=True,
+            text=True,
+            check=True,
+            env={**os.environ, "REHAB_AOT": env},
+        ).stdout
+        assert out.split() == ["False"]
