@@ -17,6 +17,7 @@ import numpy as np
 from backend import clinical, csv_text
 from backend.analysis import dump_report
 from estimators.wearable import tracker
+from estimators.wearable.dh import F64
 from estimators.wearable.params import WearableParams, WearableParamsError
 from protocol import keys, recording, wire
 
@@ -43,7 +44,8 @@ class WearableRun:
     """One wearable device's analysis, fed one recording line at a time: what
     :func:`analyze` runs over a file and the live service runs over a session's messages
     (the same lines, in the same order, decoded the same way: the same joints, by
-    construction). Rows are kept in parts; :meth:`take` hands over those not taken yet."""
+    construction). Rows are kept in (19, N) blocks (:func:`tracker.feed_block`), made rows
+    when asked for; :meth:`take` hands over those not taken yet."""
 
     def __init__(
         self, params: WearableParams, device: str | None = None, prefix: str = keys.DEFAULT_PREFIX
@@ -53,7 +55,7 @@ class WearableRun:
         self.prefix = prefix
         self.state = tracker.initial_state(params)
         self.rejected: Counter[str] = Counter()
-        self.parts: list[tracker.Rows] = []
+        self.parts: list[F64] = []  # the rows' blocks
         self.lines = 0
         self._taken = 0  # parts handed over by take()
         self.finished = False
@@ -92,9 +94,9 @@ class WearableRun:
         params, state = self.params, self.state
         if isinstance(msg, wire.ImuMessage) and msg.segment in ("upperarm", "forearm"):
             kind: tracker.Kind = "upperarm" if msg.segment == "upperarm" else "forearm"
-            rows, self.state = tracker.feed(params, state, kind, msg.t, msg.gyr, msg.acc)
+            block = tracker.feed_block(params, state, kind, msg.t, msg.gyr, msg.acc)
         elif isinstance(msg, wire.CameraMessage):
-            rows, self.state = tracker.feed(params, state, "camera", msg.t, msg.elbow, msg.wrist)
+            block = tracker.feed_block(params, state, "camera", msg.t, msg.elbow, msg.wrist)
         elif isinstance(msg, wire.EventMessage) and msg.type == "cycle_start":
             self.cycle_starts.append(msg.t)  # the movements, if the device marks them
             return True
@@ -102,8 +104,8 @@ class WearableRun:
             kind_name = {wire.ImuMessage: "imu", wire.RobotMessage: "robot"}.get(type(msg), "event")
             self.reject(f"ignored_{kind_name}")
             return False
-        if len(rows["t"]):
-            self.parts.append(rows)
+        if block.shape[1]:
+            self.parts.append(block)
         return True
 
     def finish(self) -> None:
@@ -111,22 +113,22 @@ class WearableRun:
         if self.finished:
             return
         self.finished = True
-        rows, self.state = tracker.flush(self.params, self.state)
-        if len(rows["t"]):
-            self.parts.append(rows)
+        block = tracker.flush_block(self.params, self.state)
+        if block.shape[1]:
+            self.parts.append(block)
 
     def take(self) -> tracker.Rows | None:
         """The rows completed since the last call (None if there are none)."""
         new = self.parts[self._taken :]
         if len(self.parts) >= 256:  # all taken now: merged (a part per message costs memory)
-            self.parts = [tracker.concat(self.parts)]
+            self.parts = [_join(self.parts)]
         self._taken = len(self.parts)
         if not new:
             return None
-        return new[0] if len(new) == 1 else tracker.concat(new)
+        return tracker.block_rows(_join(new))
 
     def rows(self) -> tracker.Rows:
-        return tracker.concat(self.parts)
+        return tracker.block_rows(_join(self.parts))
 
     def report(self) -> dict[str, Any]:
         return make_report(
@@ -138,6 +140,12 @@ class WearableRun:
             self.lines,
             self.cycle_starts,
         )
+
+
+def _join(blocks: list[F64]) -> F64:
+    if len(blocks) == 1:
+        return blocks[0]
+    return np.concatenate(blocks, axis=1) if blocks else np.zeros((len(tracker.ROW_KEYS), 0))
 
 
 def analyze(

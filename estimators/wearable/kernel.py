@@ -60,12 +60,19 @@ def mm(a: Any, b: Any) -> Any:
 
 
 @jit_inline
-def mv(a: Any, v: Any) -> Any:
-    """``a @ v`` for a small matrix and vector."""
-    out = np.zeros(a.shape[0])
+def mv_into(a: Any, v: Any, out: Any) -> None:
+    """``out += a @ v`` for a small matrix and vector; ``out`` zeroed by the caller gives the
+    product."""
     for i in range(a.shape[0]):
         for t in range(a.shape[1]):
             out[i] += a[i, t] * v[t]
+
+
+@jit_inline
+def mv(a: Any, v: Any) -> Any:
+    """``a @ v`` for a small matrix and vector."""
+    out = np.zeros(a.shape[0])
+    mv_into(a, v, out)
     return out
 
 
@@ -75,23 +82,22 @@ def pose(theta: Any, lu: float, lf: float) -> Any:
 
     Returns (axes (5,3), R_SU (3,3), R_SF (3,3), elbow (3,), wrist (3,)).
     """
-    # rows (γ, λ, β) of dh.dh_table; δ = 0 everywhere
-    gam = np.empty(7)
+    # rows (γ, λ, β) of dh.dh_table; δ = 0 everywhere (the work arrays are views of a few
+    # blocks, and the rotation's products alternate between two of them: this runs twice per
+    # filter step, where each allocation costs about as much as a 3×3 product)
+    table = np.zeros((3, 7))
+    gam, lam, beta = table[0], table[1], table[2]
     gam[0], gam[1], gam[2], gam[3] = theta[0], theta[1] + HALF_PI, theta[2], HALF_PI
     gam[4], gam[5], gam[6] = theta[3], theta[4], 0.0
-    lam = np.zeros(7)
     lam[3], lam[6] = -lu, -lf
-    beta = np.zeros(7)
     beta[0], beta[1], beta[3], beta[4] = HALF_PI, -HALF_PI, HALF_PI, -HALF_PI
-    rot = R_S0.copy()
-    pos = np.zeros(3)
+    mats = np.empty((5, 3, 3))
+    rot, nxt, step, r3, r6 = mats[0], mats[1], mats[2], mats[3], mats[4]
+    rot[:] = R_S0
+    vecs = np.zeros((3, 3))
+    pos, elbow, wrist = vecs[0], vecs[1], vecs[2]
     axes = np.empty((5, 3))
-    r3 = np.empty((3, 3))
-    r6 = np.empty((3, 3))
-    elbow = np.zeros(3)
-    wrist = np.zeros(3)
     j = 0
-    step = np.empty((3, 3))
     for i in range(7):
         if i != 3 and i != 6:
             for k in range(3):
@@ -106,7 +112,9 @@ def pose(theta: Any, lu: float, lf: float) -> Any:
         step[0, 0], step[0, 1], step[0, 2] = cg, -sg * cb, sg * sb
         step[1, 0], step[1, 1], step[1, 2] = sg, cg * cb, -cg * sb
         step[2, 0], step[2, 1], step[2, 2] = 0.0, sb, cb
-        rot = mm(rot, step)
+        nxt[:] = 0.0  # rot @ step: each element summed from 0.0 as mm does
+        mm_into(rot, step, nxt)
+        rot, nxt = nxt, rot
         if i == 2:
             r3[:] = rot
         elif i == 3:
@@ -121,13 +129,15 @@ def pose(theta: Any, lu: float, lf: float) -> Any:
 @jit_inline
 def _acc_at(al: Any, om: Any, r: Any, out: Any) -> None:
     """``out += α × r + ω × (ω × r)`` (eq. 14 with a fixed origin term)."""
-    t1 = np.empty(3)
-    t2 = np.empty(3)
-    cross(al, r, t1)
-    out += t1
-    cross(om, r, t1)
-    cross(om, t1, t2)
-    out += t2
+    a0, a1, a2 = _cx(al[0], al[1], al[2], r[0], r[1], r[2])
+    out[0] += a0
+    out[1] += a1
+    out[2] += a2
+    c0, c1, c2 = _cx(om[0], om[1], om[2], r[0], r[1], r[2])
+    e0, e1, e2 = _cx(om[0], om[1], om[2], c0, c1, c2)
+    out[0] += e0
+    out[1] += e1
+    out[2] += e2
 
 
 @jit_inline
@@ -180,11 +190,13 @@ def sensors(
     elbow, wrist (S); ``jac`` (6, 15, 3) (zeros unless ``jacobian``).
     """
     a, R_SU, R_SF, elbow, wrist = pose(theta, lu, lf)
-    w = np.zeros((5, 3))
-    alpha = np.zeros((5, 3))
-    wxa = np.zeros((5, 3))
-    acc_w = np.zeros(3)
-    acc_al = np.zeros(3)
+    # the work arrays as views of two zeroed blocks (one allocation each, not sixteen)
+    w5x3 = np.zeros((3, 5, 3))
+    w, alpha, wxa = w5x3[0], w5x3[1], w5x3[2]
+    v3 = np.zeros((9, 3))
+    acc_w, acc_al, acc_e, v_au, v_af, d_u, d_f = v3[0], v3[1], v3[2], v3[3], v3[4], v3[5], v3[6]
+    m3 = np.zeros((2, 3, 3))
+    R_SIu, R_SIf = m3[0], m3[1]
     for k in range(5):  # eqs. 12, 13 in S
         if k > 0:
             cross(w[k - 1], a[k], wxa[k])
@@ -194,26 +206,25 @@ def sensors(
         w[k] = acc_w
         alpha[k] = acc_al
     w_u, w_f, al_u, al_f = w[2], w[4], alpha[2], alpha[4]
-    d_u = mv(R_SU, r_u)
-    d_f = mv(R_SF, r_f)
-    d_w = wrist - elbow
-    R_SIu = mm(R_SU, R_UI)
-    R_SIf = mm(R_SF, R_FI)
-    acc_e = np.zeros(3)
+    mv_into(R_SU, r_u, d_u)
+    mv_into(R_SF, r_f, d_f)
+    d_w = v3[7]
+    for c in range(3):
+        d_w[c] = wrist[c] - elbow[c]
+    mm_into(R_SU, R_UI, R_SIu)
+    mm_into(R_SF, R_FI, R_SIf)
     _acc_at(al_u, w_u, elbow, acc_e)
-    v_au = np.zeros(3)
-    v_af = np.zeros(3)
     if body:
         _acc_at(al_u, w_u, d_u, v_au)
         v_af += acc_e
         _acc_at(al_f, w_f, d_f, v_af)
     v_au[2] += G  # eqs. 17, 18: specific force = gravity + body acceleration
     v_af[2] += G
-    vals = np.empty((6, 3))
-    vals[GYR_U] = mv(R_SIu.T, w_u)
-    vals[ACC_U] = mv(R_SIu.T, v_au)
-    vals[GYR_F] = mv(R_SIf.T, w_f)
-    vals[ACC_F] = mv(R_SIf.T, v_af)
+    vals = np.zeros((6, 3))
+    mv_into(R_SIu.T, w_u, vals[GYR_U])
+    mv_into(R_SIu.T, v_au, vals[ACC_U])
+    mv_into(R_SIf.T, w_f, vals[GYR_F])
+    mv_into(R_SIf.T, v_af, vals[ACC_F])
     vals[ELBOW] = elbow
     vals[WRIST] = wrist
     jac = np.zeros((6, 15, 3))
@@ -289,15 +300,14 @@ def outputs(x: Any, P: Any, theta_idx: Any, lu: float, lf: float, vertical_rad: 
     Each shoulder angle's σ adds its share of a pure turn about the vertical of size
     ``vertical_rad`` (the drift bound): Σ a_j δθ_j = ẑ δψ over the shoulder's joints.
     """
-    th = np.zeros(5)
-    var = np.zeros(5)
+    block = np.zeros((3, 5))
+    th, var, g = block[0], block[1], block[2]  # g: δψ = ẑ·Σ a_j δθ_j over the shoulder
     for j in range(5):
         k = theta_idx[2, j]
         if k >= 0:
             th[j] = x[k]
             var[j] = P[k, k]
     axes, _, _, elbow, wrist = pose(th, lu, lf)
-    g = np.zeros(5)  # δψ = ẑ·Σ a_j δθ_j over the estimated shoulder joints
     for j in range(3):
         if theta_idx[2, j] >= 0:
             g[j] = axes[j, 2]
@@ -414,9 +424,8 @@ def predict(
 @jit
 def joint_values(x: Any, theta_idx: Any) -> Any:
     """θ, θ̇, θ̈ (5,) of all joints from the state (joints not estimated: 0)."""
-    th = np.zeros(5)
-    d = np.zeros(5)
-    dd = np.zeros(5)
+    block = np.zeros((3, 5))
+    th, d, dd = block[0], block[1], block[2]
     for j in range(5):
         if theta_idx[2, j] >= 0:
             th[j] = x[theta_idx[2, j]]
@@ -523,10 +532,9 @@ def _cholesky(S: Any) -> Any:
 
 
 @jit_inline
-def _forward(L: Any, B: Any) -> Any:
-    """``L⁻¹ B`` for lower-triangular ``L`` (m, m) and ``B`` (m, k)."""
-    m, k = B.shape
-    X = B.copy()
+def _forward(L: Any, X: Any) -> None:
+    """``X ← L⁻¹ X`` in place for lower-triangular ``L`` (m, m) and ``X`` (m, k)."""
+    m, k = X.shape
     for i in range(m):  # row by row, each a contiguous sweep (the same sums per element)
         for t in range(i):
             lit = L[i, t]
@@ -535,7 +543,6 @@ def _forward(L: Any, B: Any) -> Any:
         d = L[i, i]
         for c in range(k):
             X[i, c] /= d
-    return X
 
 
 @jit
@@ -544,8 +551,11 @@ def gain_update(x: Any, P: Any, Pxz: Any, S: Any, y: Any) -> Any:
     the Cholesky factor ``S = L Lᵀ``: ``U = L⁻¹ Pxzᵀ``, ``v = L⁻¹ y``, ``K y = Uᵀ v``,
     ``K S Kᵀ = Uᵀ U``."""
     L = _cholesky(S)
-    U = _forward(L, np.ascontiguousarray(Pxz.T))
-    v = _forward(L, y.reshape((-1, 1)).copy())[:, 0].copy()
+    U = Pxz.T.copy()  # C order: L⁻¹ row by row
+    _forward(L, U)
+    vm = y.reshape((-1, 1)).copy()
+    _forward(L, vm)
+    v = vm[:, 0]
     m, n = U.shape
     # K y and Uᵀ U with the row r of U in the outer loop: each element still sums
     # r = 0 … m−1 in order from 0 (the same numbers as a dot per element), but the inner loop

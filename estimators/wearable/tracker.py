@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -149,6 +149,15 @@ def feed(
     """Take one message: ``t`` (N,) s; IMU: ``u`` gyro (N,3) rad/s, ``v`` specific force (N,3)
     m/s² in the IMU frame; camera: ``u`` elbow, ``v`` wrist (N,3) m in S. Returns completed
     rows (columns :data:`COLUMNS`, :data:`STD_COLUMNS`, ``flags``) and the state."""
+    return block_rows(feed_block(params, state, kind, t, u, v)), state
+
+
+def feed_block(
+    params: WearableParams, state: TrackerState, kind: Kind, t: F64, u: F64, v: F64
+) -> F64:
+    """:func:`feed` (the state updated in place) returning its rows as one (19, N) block
+    (:func:`block_rows` makes them rows): a caller that keeps many messages' rows joins the
+    blocks once instead of building a dict of 19 views per message."""
     t = np.ascontiguousarray(t, dtype=np.float64).reshape(-1)
     u = np.ascontiguousarray(u, dtype=np.float64).reshape(-1, 3)
     v = np.ascontiguousarray(v, dtype=np.float64).reshape(-1, 3)
@@ -160,13 +169,18 @@ def feed(
             u, v = mirror_vectors(u), mirror_vectors(v)
         else:
             u, v = mirror_rates(u), mirror_vectors(v)
-    return _run(params, state, _KIND[kind], t, u, v, final=False), state
+    return _run(params, state, _KIND[kind], t, u, v, final=False)
 
 
 def flush(params: WearableParams, state: TrackerState) -> tuple[Rows, TrackerState]:
     """End of data: process the upper-arm samples still waiting for a forearm partner."""
+    return block_rows(flush_block(params, state)), state
+
+
+def flush_block(params: WearableParams, state: TrackerState) -> F64:
+    """:func:`flush` returning the rows as one (19, N) block."""
     empty = np.zeros((0, 3))
-    return _run(params, state, steps.K_UPPER, np.zeros(0), empty, empty, final=True), state
+    return _run(params, state, steps.K_UPPER, np.zeros(0), empty, empty, final=True)
 
 
 def run(
@@ -191,24 +205,26 @@ class _Block(dict[str, F64]):
     block: F64
 
 
-def _rows(out: F64) -> Rows:
-    rows = _Block(zip(_ROW_KEYS, out, strict=True))
+def block_rows(out: F64) -> Rows:
+    """The rows of a (19, N) block (:func:`feed_block`): each column a view of it."""
+    rows = _Block(zip(ROW_KEYS, out, strict=True))
     rows.block = out
     return rows
 
 
 def concat(parts: list[Rows]) -> Rows:
     if parts and all(isinstance(p, _Block) for p in parts):
-        return _rows(np.concatenate([p.block for p in parts], axis=1))  # type: ignore[attr-defined]
+        return block_rows(np.concatenate([p.block for p in parts], axis=1))  # type: ignore[attr-defined]
     keys = (*COLUMNS, *STD_COLUMNS, "flags")
     return {k: np.concatenate([p[k] for p in parts]) if parts else np.zeros(0) for k in keys}
 
 
 def _run(
     params: WearableParams, state: TrackerState, kind: int, t: F64, u: F64, v: F64, final: bool
-) -> Rows:
+) -> F64:
     """A message's samples (stream ``kind``) paired (:func:`.steps.pair`) and the filter's
-    steps of the pairs, compiled with the EKF (:func:`.steps.feed`); returns their rows."""
+    steps of the pairs, compiled with the EKF (:func:`.steps.feed`); returns their rows'
+    (19, N) block."""
     buf, head, size = state.bufs[kind], int(state.ptr[2 * kind]), int(state.ptr[2 * kind + 1])
     if head + size + len(t) > len(buf):  # room for the message in the stream's queue
         new = buf if size + len(t) <= len(buf) else np.empty((2 * (size + len(t)), 7))
@@ -252,7 +268,7 @@ def _run(
         state.x, state.P = x, P
         _widen(params, state, out)
     _count(state)
-    return _rows(out)
+    return cast(F64, out)
 
 
 def _widen(params: WearableParams, state: TrackerState, out: F64) -> None:
@@ -268,7 +284,7 @@ def _widen(params: WearableParams, state: TrackerState, out: F64) -> None:
     )  # fmt: skip
 
 
-_ROW_KEYS = (*COLUMNS, *STD_COLUMNS, "flags")
+ROW_KEYS = (*COLUMNS, *STD_COLUMNS, "flags")
 
 
 def _count(state: TrackerState) -> None:
