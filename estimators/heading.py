@@ -302,8 +302,8 @@ def _fit_kernel(  # pragma: no cover - compiled
     the heteroscedastic block refit when ``block_s > 0``.
 
     ``a``, ``b`` (n, 3) m/s², ``tau`` (n,) s. ``cl`` (n, 18) (:class:`Window`'s, delayed like
-    ``a``) or (0, 18): no sensor errors; their Jacobian is :func:`_jacobian`'s, made here
-    (numpy's gather and transposing copy cost more than the fit's use of it). A sensor-frame
+    ``a``) or (0, 18): no sensor errors; their Jacobian (the one :func:`_correction`
+    applies) is made here. A sensor-frame
     accelerometer bias β appears in frame I as ``Σ_j β_j c_j(t)`` and an error Δr of the assumed
     IMU→elbow vector as ``Σ_j Δr_j c̈_j(t)``; both are linear in their unknowns once δ(t) is
     fixed, so the fit alternates the drift fit (``n_iter`` Newton steps) with a regularised
@@ -322,7 +322,7 @@ def _fit_kernel(  # pragma: no cover - compiled
     rate0, eff_rate, sig_rho = par[0], par[1], par[2]
     n_iter, n_alt, block_s = int(par[3]), int(par[4]), par[7]
     has_jac = cl.shape[0] == n and n > 0
-    jac = np.empty((3 * n if has_jac else 0, 6))  # _jacobian(cl)
+    jac = np.empty((3 * n if has_jac else 0, 6))  # as in _correction
     if has_jac:
         for k in range(n):
             for i in range(3):
@@ -603,23 +603,17 @@ def _estimate_lag(
 
 
 # cl's columns (x, y, z in I of the three sensor axes, then of their 2nd derivatives) in the
-# order of a Jacobian row: for each of x, y, z the three axes, then their 2nd derivatives
-_JAC_COLUMNS = np.array([3 * j + i for i in range(3) for j in range(6)], dtype=np.intp)
+_JAC_SIGN = np.array([-1.0, -1.0, -1.0, 1.0, 1.0, 1.0])
 
 
-def _jacobian(cl: Array) -> Array:
-    """(3n, 6): how the accelerometer bias and the lever error enter the elbow acceleration,
-    ``a_true ≈ a + jac · [β, Δr]``, rows sample-major (x, y, z of each sample), from ``cl``
-    (n, 18); ``np.concatenate((-c, ldd), axis=2)`` of its halves as (n, 3, 3), transposed."""
-    n = len(cl)
-    # cl[:, columns] gathers column by column into an (18, n) layout, where the nine of c
-    # are three contiguous blocks to negate; one transposing copy then makes it sample-major.
-    # (Copies between the (n, 3, 6) and (n, 3, 3) layouts run 3-element inner loops.)
-    by_column = cl[:, _JAC_COLUMNS].T.reshape(3, 6 * n)
-    for c in by_column[:, : 3 * n]:  # a row each (numpy buffers small 2-D views)
-        np.negative(c, out=c)
-    jac: Array = np.ascontiguousarray(by_column.reshape(18, n).T).reshape(3 * n, 6)
-    return jac
+def _correction(cl: Array, x: Array) -> Array:
+    """(n, 3): ``jac · x``, how the accelerometer bias and the lever error ``x = [β, Δr]``
+    enter the elbow acceleration (``a_true ≈ a + jac · x``), sample by sample, with the fit
+    kernel's Jacobian: ``jac[3k + i, j] = ∓cl[k, 3j + i]`` (− for β), ``cl`` (n, 18)."""
+    # contiguous, so the products are summed as one (3n, 6) · (6,) product would sum them
+    jac = np.ascontiguousarray(cl.reshape(-1, 6, 3).transpose(0, 2, 1))
+    out: Array = jac @ (x * _JAC_SIGN)
+    return out
 
 
 def _delay_index(t: Array, lag: float) -> tuple[IndexArray, IndexArray, Array]:
@@ -699,7 +693,7 @@ def update_improved(
             # the latency is read from the elbow acceleration as corrected so far: an
             # uncorrected lever error distorts the features and shows up as a false lag
             x = np.concatenate((state.acc_bias, state.lever_error))
-            a_tail = a_tail + (_jacobian(w.cl[k:]) @ x).reshape(-1, 3)
+            a_tail = a_tail + _correction(w.cl[k:], x)
         v_tail = v[k:]
         tail_valid = all_valid or _all_true(v_tail)
         lag, weight = _estimate_lag(

@@ -82,6 +82,29 @@ def test_analyze_imports_neither_the_service_nor_the_simulator(rec: Path, tmp_pa
     assert serve.returncode == 0 and "--workers" in serve.stdout
 
 
+def _both_ways(code: str, tmp_path: Path) -> list[tuple[str, list[str]]]:
+    """Runs ``code`` (an analysis into ``sys.argv[1]``, then a line of fields) with the built
+    kernels (``REHAB_AOT=1``, into ``tmp_path/aot``) and with numba's JIT (``0``, ``jit``):
+    ``(REHAB_AOT, fields)`` each; skips the test when the module is not built (its first
+    field ``False`` with ``REHAB_AOT=1``)."""
+    runs = []
+    for out, aot_env in (("aot", "1"), ("jit", "0")):
+        run = subprocess.run(
+            [sys.executable, "-c", code, str(tmp_path / out)],
+            capture_output=True,
+            text=True,
+            check=True,
+            env={**os.environ, "REHAB_AOT": aot_env},
+        )
+        fields = run.stdout.splitlines()[-1].split()
+        if aot_env == "1" and fields[0] == "False":
+            pytest.skip(
+                "kernels not built, or built from an older source: python -m estimators.aot"
+            )
+        runs.append((aot_env, fields))
+    return runs
+
+
 def test_analyze_with_kernels_built_ahead_of_time(rec: Path, tmp_path: Path) -> None:
     """With ``estimators._kernels`` built (``./run``'s set-up): `rehab analyze` imports no
     numba, and writes the same bytes as with numba's JIT of the same kernels (REHAB_AOT=0)."""
@@ -92,19 +115,7 @@ def test_analyze_with_kernels_built_ahead_of_time(rec: Path, tmp_path: Path) -> 
         "print(all(jit.uses_aot(getattr(sys.modules[k.fn.__module__], k.fn.__name__)) "
         "for k in aot.kernels().values()), 'numba' in sys.modules)"
     )
-    for out, aot_env in (("aot", "1"), ("jit", "0")):
-        run = subprocess.run(
-            [sys.executable, "-c", code, str(tmp_path / out)],
-            capture_output=True,
-            text=True,
-            check=True,
-            env={**os.environ, "REHAB_AOT": aot_env},
-        )
-        used, numba = run.stdout.splitlines()[-1].split()
-        if aot_env == "1" and used == "False":
-            pytest.skip(
-                "kernels not built, or built from an older source: python -m estimators.aot"
-            )
+    for aot_env, (used, numba) in _both_ways(code, tmp_path):
         assert (used, numba) == (("True", "False") if aot_env == "1" else ("False", "True"))
     for f in ("estimates.csv", "details.csv", "report.json"):
         assert (tmp_path / "aot" / f).read_bytes() == (tmp_path / "jit" / f).read_bytes()
@@ -125,19 +136,7 @@ def test_wearable_analyze_with_kernels_built_ahead_of_time(tmp_path: Path, camer
         "print(all(jit.uses_aot(k) for k in (steps.feed, kernel.pose)), "
         "'numba' in sys.modules, 'scipy.linalg' in sys.modules)"
     )
-    for out, aot_env in (("aot", "1"), ("jit", "0")):
-        run = subprocess.run(
-            [sys.executable, "-c", code, str(tmp_path / out)],
-            capture_output=True,
-            text=True,
-            check=True,
-            env={**os.environ, "REHAB_AOT": aot_env},
-        )
-        used, numba, linalg = run.stdout.splitlines()[-1].split()
-        if aot_env == "1" and used == "False":
-            pytest.skip(
-                "kernels not built, or built from an older source: python -m estimators.aot"
-            )
+    for aot_env, (used, numba, linalg) in _both_ways(code, tmp_path):
         # the built module's BLAS/LAPACK from SciPy's two Cython modules alone (jit._scipy_blas)
         assert (used, numba, linalg) == (
             ("True", "False", "False") if aot_env == "1" else ("False", "True", "True")
