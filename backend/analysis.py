@@ -197,6 +197,21 @@ class DeviceRun:
             }
             (self.cycles if v.compensatory is not None else self.unjudged).append(d)
 
+    def pack_rows(self) -> None:
+        """The waiting rows as one block, still unformatted (a snapshot: two arrays in its
+        state instead of up to 1024 polls' small ones, and the text made later on an
+        ordinary turn, the same text: formatting is batch-invariant)."""
+        parts = self._waiting
+        if len(parts) < 2:
+            return
+        tables = [p for p in parts if isinstance(p, tuple)]
+        if len(tables) == len(parts):
+            m = np.concatenate([m for m, _ in tables])
+            st = np.concatenate([s for _, s in tables])
+            self._waiting = [(m, st)]
+        else:  # a finished pipeline's rows among them (a clock reset): rare, format them
+            self.format_rows()
+
     def format_rows(self) -> None:
         """The waiting rows into the CSV lines and the report's statistics (``report()``
         does it; the live service also before a file is read mid-session)."""

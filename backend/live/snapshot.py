@@ -162,10 +162,10 @@ def take(run: LiveRun, epoch: int) -> Taken:
     (the state must not move meanwhile). Raises :class:`estimators.state.StateError` if the
     state is not plain data (a bug: counted by the caller, the session goes on)."""
     assert run.session is not None and run.files is not None
-    # the rows waiting to be formatted (up to 1024 polls' worth of small arrays) go to the
-    # files now rather than into the state: the same text (formatting is batch-invariant),
-    # work moved forward, a state of a few large arrays
-    run.run.format_rows()
+    # the rows waiting to be formatted (up to 1024 polls' worth of small arrays) go into the
+    # state as one block: formatting them here (half the capture's time) would hold every
+    # device of the worker for it; they are formatted on a later turn, to the same text
+    run.run.pack_rows()
     marks = run.files.marks()
     body = state.dump(run, _externals(run), MODULES)
     info = run.session.info
