@@ -233,8 +233,10 @@ class Model:
         var[self.i_th] = (p.init_sigma_deg * DEG) ** 2
         var[self.i_bu] = (p.gyro_bias_sigma_dps * DEG) ** 2
         var[self.i_bf] = (p.gyro_bias_sigma_dps * DEG) ** 2
-        var[self.i_au] = (0.1 * p.body_acc_sigma_ms2) ** 2
-        var[self.i_af] = (0.1 * p.body_acc_sigma_ms2) ** 2
+        s0 = p.body_acc_init_sigma_ms2
+        s0 = 0.1 * p.body_acc_sigma_ms2 if s0 is None else s0
+        var[self.i_au] = s0**2
+        var[self.i_af] = s0**2
         var[self.i_mu] = (p.mounting_sigma_deg * DEG) ** 2
         var[self.i_mf] = (p.mounting_sigma_deg * DEG) ** 2
         return x, np.diag(var)

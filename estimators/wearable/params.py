@@ -103,6 +103,9 @@ class WearableParams:
     # model B's GM-1 body acceleration (paper ref. 17): correlation time and steady σ
     body_acc_tau_s: float = 0.2
     body_acc_sigma_ms2: float = 5.0
+    # prior σ of each body-acceleration state, m/s² (None: a tenth of the steady σ). A random
+    # walk (τ → ∞, the form eq. 3 gives the paper's own GM-1) has no steady σ to take it from.
+    body_acc_init_sigma_ms2: float | None = None
     # product: gyro-bias random constants per IMU (off = the paper's model)
     gyro_bias: bool = True
     gyro_bias_sigma_dps: float = 0.5  # prior σ of each bias component
@@ -178,6 +181,9 @@ class WearableParams:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise WearableParamsError(f"{name} must be a finite number > 0, not {v!r}")
+        v0 = self.body_acc_init_sigma_ms2
+        if v0 is not None and not (math.isfinite(v0) and v0 > 0):
+            raise WearableParamsError(f"body_acc_init_sigma_ms2 must be > 0 or None, not {v0!r}")
         if not self.joints or any(j not in range(5) for j in self.joints):
             raise WearableParamsError(f"joints must be indices 0..4, not {self.joints!r}")
 

@@ -7,6 +7,8 @@ Jacobians, the paper's equations for F and the measurement rows.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -337,6 +339,21 @@ def test_model_a_beats_uncompensated_models_with_body_acceleration():
         rows, _ = tracker.run(p, [("upperarm", t, gu, au)])
         err[model] = _rmse(rows["shoulder_flexion_deg"][t > 2], np.degrees(fn(t)[t > 2, 0]))
     assert err["A"] < 0.6 < err["B"] < err["C"], err
+
+
+def test_body_acceleration_prior_is_selectable():
+    """Model B's body-acceleration prior: a tenth of the GM-1's steady σ, or given (a random
+    walk, eq. 3's form, has no steady σ to take it from); nonsense is refused."""
+    base = WearableParams(model="B", joints=(0,), forearm=False, gyro_bias=False)
+    walk = {"body_acc_tau_s": 1e6, "body_acc_sigma_ms2": 1e3}
+    for kw, sigma in (({}, 0.5), (walk, 100.0), ({**walk, "body_acc_init_sigma_ms2": 0.02}, 0.02)):
+        mdl = Model.build(replace(base, **kw))
+        _, P0 = mdl.initial()
+        assert len(mdl.i_au) == 3
+        assert np.allclose(np.diag(P0)[mdl.i_au], sigma**2)
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(WearableParamsError):
+            replace(base, body_acc_init_sigma_ms2=bad)
 
 
 def test_streaming_equals_batch():
