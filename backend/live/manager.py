@@ -63,6 +63,11 @@ from protocol.zenoh_config import make_config
 log = logging.getLogger(__name__)
 
 MAX_DEVICES = 1000  # a flood of invented device names must not grow memory without bound
+# The GIL switch interval of a process whose one loop carries everything (HTTP, ingest and
+# every pipeline: `rehab demo`, `--single-process`). There the loop holds the GIL nearly all
+# the time, and Zenoh's receive thread waited up to Python's 5 ms for it on every burst (tens
+# of milliseconds on p99). A worker and the API node keep Python's default: measured without
+# a difference (docs/scaling.md, "What the single loop forced").
 SWITCH_INTERVAL_S = 0.0005
 TICK_S = 0.25  # the ticker: each session's files flushed to the OS (a kill -9 loses < 1 s)
 COMMAND_TIMEOUT_S = 30.0
@@ -157,10 +162,8 @@ class LiveManager:
                 asyncio.create_task(self._recover(self._interrupted), name="live-recover")
             )
 
-        # The loop shares the GIL with Zenoh's receive thread and a worker's lease thread;
-        # a thread that wants it back waits up to the switch interval (Python's 5 ms put
-        # tens of milliseconds on p99, and stretched a worker's renewals into expiries).
-        sys.setswitchinterval(SWITCH_INTERVAL_S)
+        if self.SERVES_HTTP and self.RUNS_PIPELINES:
+            sys.setswitchinterval(SWITCH_INTERVAL_S)
 
     async def close(self) -> None:
         """Finish running sessions (files complete, report written, stored as interrupted:
