@@ -723,6 +723,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.role == "subscriber":
         subscriber(args)
         return 0
+    # a SIGTERM (a job stopped) unwinds like Ctrl-C: the `finally` stops the service and its
+    # workers instead of leaving them running
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     if args.sweep:
         result = sweep(args.duration, args.sweep_start, not args.no_sessions, args.lockstep)
         for r in result["runs"]:
