@@ -7,6 +7,8 @@ Jacobians, the paper's equations for F and the measurement rows.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -467,6 +469,7 @@ def test_camera_dropout_and_stale_samples():
     assert ((rows["flags"].astype(int) & tracker.CAMERA_USED) > 0).sum() > 0
 
 
+SURE = 7.5  # backend.live.wearable_run.SURE_STD_DEG (estimators' tests import no backend)
 ANGLES_ALL = (
     "shoulder_flexion",
     "shoulder_abduction",
@@ -478,7 +481,8 @@ ANGLES_ALL = (
 
 def _coverage(move: str, camera: bool, seed: int, **kw) -> dict[str, float]:
     """Share of the moving phase's rows with |error| <= 2 reported σ, per angle, on a session
-    of the project's simulator (every error source on, none known to the filter)."""
+    of the project's simulator (every error source on, none known to the filter); and
+    (``<angle>_wrong``) the share shown sure (σ <= the dashboard's 7.5°) but wrong by more."""
     from simulator import wearable as w
 
     sim = w.simulate(w.WearableSimConfig(move=move, duration_s=30.0, seed=seed, camera=camera))
@@ -493,6 +497,7 @@ def _coverage(move: str, camera: bool, seed: int, **kw) -> dict[str, float]:
         ok = np.isfinite(e)
         assert ok.mean() > 0.9
         out[a] = float(np.mean(np.abs(e[ok]) <= 2.0 * s[ok]))
+        out[f"{a}_wrong"] = float(np.mean((s[ok] <= SURE) & (np.abs(e[ok]) > SURE)))
     return out
 
 
@@ -508,10 +513,15 @@ def test_reported_sigma_covers_the_error(move, camera, least):
     scale errors and soft tissue are biases, not the white noise of eq. 19."""
     product = _coverage(move, camera, seed=7)
     off = {k: (0.0,) * 5 for k in ("sigma_floor_deg", "sigma_share", "sigma_doubt")}
-    bare = _coverage(move, camera, seed=7, **off, sigma_pronation_vertical_deg=0.0)
+    unseen = {"sigma_axial_share": 0.0, "pronation_drift_dps": 0.0}
+    bare = _coverage(move, camera, seed=7, **off, **unseen, sigma_pronation_vertical_deg=0.0)
     for a in ANGLES_ALL:
         assert product[a] >= least, (a, product)
     assert min(bare.values()) < 0.5, bare  # the check can fail: P alone is over-confident
+    # the dashboard never shows pronation as sure when it is off by more than 7.5° (soft
+    # tissue, the strap's turn, a straight elbow, a hanging forearm); P alone does
+    assert product["forearm_pronation_wrong"] <= 0.02, product
+    assert bare["forearm_pronation_wrong"] > 0.05, bare
 
 
 def test_doubt_after_a_large_rotation_fades_and_ignores_grouping():
@@ -568,6 +578,7 @@ def test_compiled_widening_matches_the_array_form_bit_for_bit():
     out = rng.normal(0.0, 40.0, (19, n))
     out[0] = 1.0 + np.arange(n) / 100.0
     out[6:12] = rng.normal(0.0, 0.3, (6, n))
+    out[11, :250] = out[8, :250] - 1.0  # a hanging forearm for 2.5 s (pronation's drift)
     out[12:17] = np.abs(out[12:17]) / 10.0
     out[[3, 4, 5, 15, 16, 9, 10, 11], rng.integers(0, n, 8)] = np.nan
     floor2, share2, doubt2 = (
@@ -580,6 +591,27 @@ def test_compiled_widening_matches_the_array_form_bit_for_bit():
     d = (out[9:12] - out[6:9]) ** 2
     c2 = np.fmax(d[2] / np.maximum(d[0] + d[1] + d[2], 1e-12), 0.0)
     extra[4] += (p.sigma_pronation_vertical_deg * c2) ** 2
+    # what no sensor sees (steps.unobserved), row by row from the previous row
+    ax, dr = np.zeros(n), np.zeros(n)
+    a = b = 0.0
+    prev = (math.nan, math.nan, math.nan)
+    for k in range(n):
+        dt = out[0, k] - prev[0] if k else 0.0
+        el = out[4, k]
+        s = math.cos(math.radians(el)) ** 2 if np.isfinite(el) else 1.0
+        mv = 0.0
+        if np.isfinite(out[1, k]) and np.isfinite(out[2, k]):
+            if np.isfinite(prev[1]):
+                mv = abs(out[1, k] - prev[1]) + abs(out[2, k] - prev[2])
+            prev = (out[0, k], out[1, k], out[2, k])
+        else:
+            prev = (out[0, k], prev[1], prev[2])
+        a = a * math.exp(-dt * (1.0 - s) / p.axial_tau_s) + p.sigma_axial_share * s * mv
+        b = max(0.0, b + dt * p.pronation_drift_dps * (2.0 * c2[k] - 1.0))
+        ax[k], dr[k] = a, b
+    extra[2] += ax * ax
+    extra[4] += ax * ax
+    extra[4] += dr * dr
     want = np.sqrt(out[12:17] ** 2 + extra)
     state = tracker.initial_state(p)
     got = out.copy()
@@ -589,3 +621,4 @@ def test_compiled_widening_matches_the_array_form_bit_for_bit():
         got[:, i : i + 13] = part
     np.testing.assert_array_equal(got[12:17], want)
     assert np.isnan(want).any() and (h > 1.0).any()  # missing angles and the doubt in play
+    assert (ax > 1.0).any() and (dr > 0.5).any()  # and what no sensor sees
