@@ -70,6 +70,7 @@ PAPER_METHOD = {
     "sigma_pronation_vertical_deg": 0.0,
     "sigma_axial_share": 0.0,
     "pronation_drift_dps": 0.0,
+    "vertical_init_deg": 0.0,
 }
 PAPER_T10 = {"Shoulder": (4.7, 0.9, 5.9, 0.8), "Elbow": (5.9, 1.0, 6.9, 1.4)}
 

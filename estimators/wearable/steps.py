@@ -70,8 +70,8 @@ C_BACKWARDS, C_NONFINITE, C_RANGE = 9, 12, 15  # + the stream (kind)
 (T_NIS_WINDOW, T_NIS_LIMIT, T_LEFT, T_FOREARM) = range(6, 10)
 T_UP_U, T_UP_F = 10, 13  # (3,) each: "up" in each IMU's frame at the zero pose
 (T_TOL, T_MISSING, T_CAM_AGE, T_CAMERA, T_FIX_REACH, T_SIGMA_POS) = range(16, 22)
-T_MAX_GYRO, T_MAX_ACC = 22, 23
-T_SIZE = 24
+T_MAX_GYRO, T_MAX_ACC, T_VERT_INIT = 22, 23, 24
+T_SIZE = 25
 # the streams (``kind``) and their sample buffers: rows (t, u (3), v (3)), a queue from
 # ``ptr[2 kind]`` of ``ptr[2 kind + 1]`` rows
 K_UPPER, K_FORE, K_CAMERA = range(3)
@@ -249,7 +249,7 @@ def begin(x: Any, P: Any, mon: Any, tp: Any, counts: Any, t: float, x0: Any, P0:
             mon[M_ACC_U + k] = 0.0
         mon[M_REST_N] = mon[M_REST_NF] = mon[M_GYRO_MAX] = mon[M_CHECKED] = 0.0
         mon[M_STICKY] = mon[M_NIS_SUM] = mon[M_NIS_LEN] = mon[M_NIS_POS] = 0.0
-        mon[M_VERT] = tp[T_INIT_SIGMA]
+        mon[M_VERT] = tp[T_INIT_SIGMA] + tp[T_VERT_INIT]
         ts = 0.0
     else:
         ts = t - mon[M_T_LAST]

@@ -103,6 +103,7 @@ def initial_state(params: WearableParams) -> TrackerState:
     tp[steps.T_REST_S] = params.rest_s
     tp[steps.T_DRIFT] = params.vertical_drift_dps
     tp[steps.T_INIT_SIGMA] = params.init_sigma_deg
+    tp[steps.T_VERT_INIT] = params.vertical_init_deg
     tp[steps.T_REST_GYRO] = params.rest_gyro_dps * DEG
     tp[steps.T_MOUNT_TOL] = params.mounting_tolerance_deg
     tp[steps.T_NIS_WINDOW] = params.nis_window

@@ -479,13 +479,13 @@ ANGLES_ALL = (
 )
 
 
-def _coverage(move: str, camera: bool, seed: int, **kw) -> dict[str, float]:
+def _coverage(move: str, camera: bool, seed: int, dur: float = 30.0, **kw) -> dict[str, float]:
     """Share of the moving phase's rows with |error| <= 2 reported σ, per angle, on a session
     of the project's simulator (every error source on, none known to the filter); and
     (``<angle>_wrong``) the share shown sure (σ <= the dashboard's 7.5°) but wrong by more."""
     from simulator import wearable as w
 
-    sim = w.simulate(w.WearableSimConfig(move=move, duration_s=30.0, seed=seed, camera=camera))
+    sim = w.simulate(w.WearableSimConfig(move=move, duration_s=dur, seed=seed, camera=camera))
     rows, _ = tracker.run(
         WearableParams.from_json(sim.params, **kw), w.tracker_inputs(sim.messages)
     )
@@ -522,6 +522,18 @@ def test_reported_sigma_covers_the_error(move, camera, least):
     # tissue, the strap's turn, a straight elbow, a hanging forearm); P alone does
     assert product["forearm_pronation_wrong"] <= 0.02, product
     assert bare["forearm_pronation_wrong"] > 0.05, bare
+
+
+def test_camera_less_turn_about_the_vertical_is_not_shown_sure():
+    """Without a camera the whole arm's turn about the vertical can be off by 10–18° from the
+    first movement after the rest (this wheel session, seed 9 of the sizing seeds: abduction
+    and rotation shown sure but off by more than 7.5° on ~20 % of the rows with the drift
+    bound's start at ``init_sigma_deg``): ``vertical_init_deg`` keeps them grey."""
+    product = _coverage("shoulder_wheel", False, seed=9, dur=60.0)
+    bare = _coverage("shoulder_wheel", False, seed=9, dur=60.0, vertical_init_deg=0.0)
+    for a in ("shoulder_abduction", "shoulder_rotation"):
+        assert product[f"{a}_wrong"] <= 0.02, product
+        assert bare[f"{a}_wrong"] > 0.1, bare  # the check can fail
 
 
 def test_doubt_after_a_large_rotation_fades_and_ignores_grouping():
