@@ -30,11 +30,15 @@ log = logging.getLogger(__name__)
 
 # An angle whose standard deviation is above this is not shown as sure (the dashboard greys
 # it and the ROM test ignores it): the vertical turn drifts without a camera (§8 "Start").
-# The σ includes the model's errors (WearableParams.sigma_floor_deg/sigma_share/sigma_doubt/
-# sigma_pronation_vertical_deg: it covers the error on ~95 % of samples); 7.5° keeps shoulder
-# and elbow flexion sure over their whole range (5.8° at 180° of shoulder flexion), within a
-# goniometer's 5-10°, and greys a drifting angle, pronation beyond ~60°, where the error grows
-# with the angle, and the flexions for a while after a shoulder rotation beyond ~55°.
+# The σ includes the model's errors and what no sensor sees (WearableParams.sigma_floor_deg/
+# sigma_share/sigma_doubt/sigma_pronation_vertical_deg/sigma_axial_share/pronation_drift_dps/
+# vertical_init_deg:
+# it covers the error on ~95 % of samples, and an angle off by more than this is rarely shown
+# sure); 7.5° keeps shoulder and elbow flexion sure over their whole range (5.8° at 180° of
+# shoulder flexion), within a goniometer's 5-10°, and greys a drifting angle, pronation beyond
+# ~30° (or with the elbow straight), where the error grows with the angle, and the flexions
+# for 30-40 s after a shoulder rotation to ±60°; without a camera, shoulder abduction and
+# rotation most of the time (the turn about the vertical).
 SURE_STD_DEG = 7.5
 ANGLES = aw.ANGLES
 STD_OF = dict(zip(ANGLES, tracker.STD_COLUMNS[:5], strict=True))

@@ -70,8 +70,8 @@ C_BACKWARDS, C_NONFINITE, C_RANGE = 9, 12, 15  # + the stream (kind)
 (T_NIS_WINDOW, T_NIS_LIMIT, T_LEFT, T_FOREARM) = range(6, 10)
 T_UP_U, T_UP_F = 10, 13  # (3,) each: "up" in each IMU's frame at the zero pose
 (T_TOL, T_MISSING, T_CAM_AGE, T_CAMERA, T_FIX_REACH, T_SIGMA_POS) = range(16, 22)
-T_MAX_GYRO, T_MAX_ACC = 22, 23
-T_SIZE = 24
+T_MAX_GYRO, T_MAX_ACC, T_VERT_INIT = 22, 23, 24
+T_SIZE = 25
 # the streams (``kind``) and their sample buffers: rows (t, u (3), v (3)), a queue from
 # ``ptr[2 kind]`` of ``ptr[2 kind + 1]`` rows
 K_UPPER, K_FORE, K_CAMERA = range(3)
@@ -249,7 +249,7 @@ def begin(x: Any, P: Any, mon: Any, tp: Any, counts: Any, t: float, x0: Any, P0:
             mon[M_ACC_U + k] = 0.0
         mon[M_REST_N] = mon[M_REST_NF] = mon[M_GYRO_MAX] = mon[M_CHECKED] = 0.0
         mon[M_STICKY] = mon[M_NIS_SUM] = mon[M_NIS_LEN] = mon[M_NIS_POS] = 0.0
-        mon[M_VERT] = tp[T_INIT_SIGMA]
+        mon[M_VERT] = tp[T_INIT_SIGMA] + tp[T_VERT_INIT]
         ts = 0.0
     else:
         ts = t - mon[M_T_LAST]
@@ -421,7 +421,7 @@ _FEED = (
     "Tuple((f8[::1], f8[:, ::1], f8[:, ::1]))(i8, f8[:], f8[:, :], f8[:, :], b1, f8[:, ::1],"
     " f8[:, ::1], f8[:, ::1], i8[::1], f8[::1], f8[::1], f8[:, ::1], f8[::1], f8[::1], f8[::1],"
     " i8[::1], b1[:, ::1], i8[::1], f8[::1], f8[::1], f8[:, ::1], i8[:, ::1], f8[:, :, ::1],"
-    " f8[:, ::1], f8[::1], f8, f8, f8)"
+    " f8[:, ::1], f8[::1], f8, f8, f8, f8, f8, f8)"
 )
 
 
@@ -455,30 +455,47 @@ def feed(
     vertical: float,
     rotation: float,
     tau: float,
+    axial: float,
+    axial_tau: float,
+    drift: float,
 ) -> Any:
     """One message through the EKF: :func:`pair`, :func:`track`, then :func:`widen` of its
-    rows (``terms`` … ``tau`` as it takes them): one call from Python."""
+    rows (``terms`` … ``drift`` as it takes them): one call from Python."""
     pt, z, avail, flags, fix = pair(kind, t, u, v, upper, fore, cam, ptr, t_seen, tp, counts, final)
     x, P, out = track(
         x, P, mon, nis_buf, tp, counts, pt, z, have, avail, flags, fix, ia, fa, x0, P0, mis, basis
     )
-    widen(out, terms, doubt, vertical, rotation, tau)
+    widen(out, terms, doubt, vertical, rotation, tau, axial, axial_tau, drift)
     return x, P, out
 
 
 @jit
-def widen(out: Any, terms: Any, doubt: Any, vertical: float, rotation: float, tau: float) -> None:
+def widen(
+    out: Any,
+    terms: Any,
+    doubt: Any,
+    vertical: float,
+    rotation: float,
+    tau: float,
+    axial: float,
+    axial_tau: float,
+    drift: float,
+) -> None:
     """The reported σ of each angle (rows 12–16 of ``out`` (19, N), degrees, in place): the
     filter's σ with ``terms`` (3, 5) squared: the systematic floor, the share of the angle
     (rows 1–5), the doubt after a large shoulder rotation; and pronation's with a vertical
     forearm, ``vertical`` deg × the squared vertical component of wrist − elbow (0 if unknown).
-    The doubt (:func:`doubt_held`: ``rotation`` deg, ``tau`` s, its state ``doubt``) of the
-    shoulder rotation (row 3) at the rows' times (row 0). NaN (no angle) stays NaN.
+    The doubt (:func:`doubt_held`: ``rotation`` deg, ``tau`` s, its state ``doubt[:2]``) of the
+    shoulder rotation (row 3) at the rows' times (row 0). Then the two terms of
+    :func:`unobserved` (``axial`` share, ``axial_tau`` s, ``drift`` deg/s; state
+    ``doubt[2:]``): rotation and pronation's split while the elbow is straight, pronation's
+    drift while the forearm hangs. NaN (no angle) stays NaN.
     One message's rows per call: per row, the arithmetic of the array form it replaced, in
-    the same order (the same numbers bit for bit)."""
+    the same order (the same numbers bit for bit); the state makes any grouping give the same."""
     n = out.shape[1]
     use_doubt = False
-    use_any = vertical != 0.0
+    use_new = axial != 0.0 or drift != 0.0
+    use_any = vertical != 0.0 or use_new
     for j in range(5):
         use_doubt = use_doubt or terms[2, j] != 0.0
         use_any = use_any or terms[0, j] != 0.0 or terms[1, j] != 0.0 or terms[2, j] != 0.0
@@ -490,7 +507,7 @@ def widen(out: Any, terms: Any, doubt: Any, vertical: float, rotation: float, ta
     for k in range(n):
         hh = h[k] * h[k]
         c2 = 0.0
-        if vertical != 0.0:
+        if vertical != 0.0 or drift != 0.0:
             d0 = out[9, k] - out[6, k]
             d1 = out[10, k] - out[7, k]
             d2 = out[11, k] - out[8, k]
@@ -500,6 +517,12 @@ def widen(out: Any, terms: Any, doubt: Any, vertical: float, rotation: float, ta
             s = d0 + d1 + d2
             q = d2 / (s if (s != s or s > 1e-12) else 1e-12)  # np.maximum keeps NaN
             c2 = q if q > 0.0 else 0.0  # np.fmax: NaN -> 0
+        ax2 = 0.0
+        dr2 = 0.0
+        if use_new:
+            unobserved(out, k, doubt, axial, axial_tau, drift, c2)
+            ax2 = doubt[2] * doubt[2]
+            dr2 = doubt[3] * doubt[3]
         for j in range(5):
             a = out[1 + j, k]
             e = terms[0, j] + terms[1, j] * (a * a)
@@ -508,8 +531,44 @@ def widen(out: Any, terms: Any, doubt: Any, vertical: float, rotation: float, ta
             if j == 4 and vertical != 0.0:
                 w = vertical * c2
                 e += w * w
+            if use_new and (j == 2 or j == 4):
+                e += ax2
+                if j == 4:
+                    e += dr2
             sd = out[12 + j, k]
             out[12 + j, k] = math.sqrt(sd * sd + e)
+
+
+@jit
+def unobserved(
+    out: Any, k: int, doubt: Any, axial: float, axial_tau: float, drift: float, c2: float
+) -> None:
+    """Two bounds on what no sensor sees, for row ``k`` of ``out``, in ``doubt[2:]``
+    ([axial, drift, t, θ0, θ1] of the previous row; deg, s):
+
+    - *axial*: with the elbow straight, shoulder rotation and pronation turn about the same
+      axis (the arm's), so their split is seen by neither gravity nor the camera. It grows by
+      ``axial`` × the upper arm's motion (|Δθ0| + |Δθ1|, deg) weighted by cos² of the elbow
+      angle (an unknown elbow counts as straight), and fades as exp(−Δt·sin²/``axial_tau``)
+      once the elbow bends (its split is then seen).
+    - *drift*: with the forearm hanging (``c2`` its squared vertical component) pronation
+      is a turn about the vertical; it grows at ``drift`` deg/s·(2 c2 − 1), down to 0 while
+      the forearm is nearer horizontal than vertical (gravity then sees pronation)."""
+    t = out[0, k]
+    dt = t - doubt[4] if doubt[4] == doubt[4] else 0.0
+    doubt[4] = t
+    el = out[4, k]
+    s = math.cos(math.radians(el)) ** 2 if el == el else 1.0
+    mv = 0.0
+    a0 = out[1, k]
+    a1 = out[2, k]
+    if a0 == a0 and a1 == a1:
+        if doubt[5] == doubt[5]:
+            mv = abs(a0 - doubt[5]) + abs(a1 - doubt[6])
+        doubt[5] = a0
+        doubt[6] = a1
+    doubt[2] = doubt[2] * math.exp(-dt * (1.0 - s) / axial_tau) + axial * s * mv
+    doubt[3] = max(0.0, doubt[3] + dt * drift * (2.0 * c2 - 1.0))
 
 
 @jit

@@ -81,8 +81,11 @@ class TrackerState:
     ptr: I64 = field(default_factory=lambda: np.zeros(6, dtype=np.intp))
     rejected: Counter[str] = field(default_factory=Counter)
     # the σ's doubt after a large shoulder rotation (:func:`.steps.widen`): the first row's
-    # time and the running peak of log(g) + (t − t_first)/τ
-    doubt: F64 = field(default_factory=lambda: np.array([math.nan, -math.inf]))
+    # time and the running peak of log(g) + (t − t_first)/τ; then :func:`.steps.unobserved`'s
+    # bounds (axial, drift) and the previous row's t, θ0, θ1
+    doubt: F64 = field(
+        default_factory=lambda: np.array([math.nan, -math.inf, 0.0, 0.0, *[math.nan] * 3])
+    )
     # the σ's terms: floor², share², doubt², (3, 5) (:func:`.steps.widen`)
     widen: F64 = field(default_factory=lambda: np.zeros((3, 5)))
 
@@ -100,6 +103,7 @@ def initial_state(params: WearableParams) -> TrackerState:
     tp[steps.T_REST_S] = params.rest_s
     tp[steps.T_DRIFT] = params.vertical_drift_dps
     tp[steps.T_INIT_SIGMA] = params.init_sigma_deg
+    tp[steps.T_VERT_INIT] = params.vertical_init_deg
     tp[steps.T_REST_GYRO] = params.rest_gyro_dps * DEG
     tp[steps.T_MOUNT_TOL] = params.mounting_tolerance_deg
     tp[steps.T_NIS_WINDOW] = params.nis_window
@@ -241,6 +245,7 @@ def _run(
             state.mon, state.nis_buf, state.tp, state.counts, state.have, ia, fa, x0, P0,
             model.mis_idx, model.mis_basis, state.widen, state.doubt,
             params.sigma_pronation_vertical_deg, params.doubt_rotation_deg, params.doubt_tau_s,
+            params.sigma_axial_share, params.axial_tau_s, params.pronation_drift_dps,
         )  # fmt: skip
     else:  # the UKF's update in Python between the same bookkeeping
         t, z, avail, flags, fix = steps.pair(
@@ -274,13 +279,15 @@ def _run(
 def _widen(params: WearableParams, state: TrackerState, out: F64) -> None:
     """The reported σ of each angle (rows 12–16 of ``out``, degrees, in place), compiled
     (:func:`.steps.widen`): the filter's σ with the systematic floor, the share of the angle,
-    the doubt after a large shoulder rotation and pronation's with a vertical forearm
-    (:class:`WearableParams` ``sigma_floor_deg``, ``sigma_share``, ``sigma_doubt``,
-    ``doubt_rotation_deg``, ``doubt_tau_s``, ``sigma_pronation_vertical_deg``); NaN (an angle
-    not available) stays NaN."""
+    the doubt after a large shoulder rotation, pronation's with a vertical forearm, and the
+    bounds on what no sensor sees (:class:`WearableParams` ``sigma_floor_deg``,
+    ``sigma_share``, ``sigma_doubt``, ``doubt_rotation_deg``, ``doubt_tau_s``,
+    ``sigma_pronation_vertical_deg``, ``sigma_axial_share``, ``axial_tau_s``,
+    ``pronation_drift_dps``); NaN (an angle not available) stays NaN."""
     steps.widen(
         out, state.widen, state.doubt, params.sigma_pronation_vertical_deg,
-        params.doubt_rotation_deg, params.doubt_tau_s,
+        params.doubt_rotation_deg, params.doubt_tau_s, params.sigma_axial_share,
+        params.axial_tau_s, params.pronation_drift_dps,
     )  # fmt: skip
 
 
