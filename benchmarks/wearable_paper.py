@@ -580,28 +580,34 @@ def coverage(seeds: int, dur: float, first: int = 100) -> None:
     print(
         f"### Per-angle confidence: coverage ({seeds} trials (seeds {first}+) × {dur:g} s, 100 Hz, all simulated errors; share of rows with |error| ≤ 2σ, worst trial in brackets; RMSE and median σ mean over trials)\n"
     )
-    print("| session | filter | " + " | ".join(a[:-4] for a in ANGLES) + " |")
-    print("|---|---|" + "---|" * len(ANGLES))
-    for (name, label), r in runs.items():
-        cells = [
-            f"{100 * np.mean(r[:, j, 0]):.0f} % ({100 * np.min(r[:, j, 0]):.0f}); "
-            f"{np.mean(r[:, j, 1]):.2f}° / σ {np.mean(r[:, j, 2]):.2f}°"
-            for j in range(len(ANGLES))
-        ]
-        print(f"| {name} | {label} | " + " | ".join(cells) + " |")
+    _angle_table(
+        runs,
+        lambda r: (
+            f"{100 * np.mean(r[:, 0]):.0f} % ({100 * np.min(r[:, 0]):.0f}); "
+            f"{np.mean(r[:, 1]):.2f}° / σ {np.mean(r[:, 2]):.2f}°"
+        ),
+    )
     print(
         f'\n### What the dashboard shows (σ ≤ {SURE_STD_DEG:g}° is shown sure): rows shown sure, and rows shown sure with |error| > {SURE_STD_DEG:g}° ("wrongly sure"), % of the moving phase\'s rows, mean (worst trial)\n'
     )
+    _angle_table(
+        runs,
+        lambda r: (
+            f"sure {100 * np.mean(r[:, 3]):.0f} % ({100 * np.min(r[:, 3]):.0f}); "
+            f"wrong {100 * np.mean(r[:, 4]):.1f} % ({100 * np.max(r[:, 4]):.1f})"
+        ),
+    )
+    print()
+
+
+def _angle_table(runs: dict[tuple[str, str], F64], cell: Callable[[F64], str]) -> None:
+    """A markdown table: a row per (session, filter), a cell per angle from its trials'
+    figures (``runs[...][:, angle, :]``)."""
     print("| session | filter | " + " | ".join(a[:-4] for a in ANGLES) + " |")
     print("|---|---|" + "---|" * len(ANGLES))
     for (name, label), r in runs.items():
-        cells = [
-            f"sure {100 * np.mean(r[:, j, 3]):.0f} % ({100 * np.min(r[:, j, 3]):.0f}); "
-            f"wrong {100 * np.mean(r[:, j, 4]):.1f} % ({100 * np.max(r[:, j, 4]):.1f})"
-            for j in range(len(ANGLES))
-        ]
+        cells = [cell(r[:, j, :]) for j in range(len(ANGLES))]
         print(f"| {name} | {label} | " + " | ".join(cells) + " |")
-    print()
 
 
 def rom_elbow(seeds: int, first: int) -> None:
