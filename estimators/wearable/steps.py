@@ -72,6 +72,10 @@ T_UP_U, T_UP_F = 10, 13  # (3,) each: "up" in each IMU's frame at the zero pose
 (T_TOL, T_MISSING, T_CAM_AGE, T_CAMERA, T_FIX_REACH, T_SIGMA_POS) = range(16, 22)
 T_MAX_GYRO, T_MAX_ACC, T_VERT_INIT = 22, 23, 24
 T_SIZE = 25
+# :func:`widen`'s scalar settings, one (6,) array (:class:`.params.WearableParams`: the
+# pronation's vertical term, deg; the rotation's doubt threshold, deg, and fading, s; the
+# straight-elbow share and its fading, s; the hanging forearm's drift, deg/s)
+(K_VERTICAL, K_ROTATION, K_TAU, K_AXIAL, K_AXIAL_TAU, K_DRIFT) = range(6)
 # the streams (``kind``) and their sample buffers: rows (t, u (3), v (3)), a queue from
 # ``ptr[2 kind]`` of ``ptr[2 kind + 1]`` rows
 K_UPPER, K_FORE, K_CAMERA = range(3)
@@ -421,7 +425,7 @@ _FEED = (
     "Tuple((f8[::1], f8[:, ::1], f8[:, ::1]))(i8, f8[:], f8[:, :], f8[:, :], b1, f8[:, ::1],"
     " f8[:, ::1], f8[:, ::1], i8[::1], f8[::1], f8[::1], f8[:, ::1], f8[::1], f8[::1], f8[::1],"
     " i8[::1], b1[:, ::1], i8[::1], f8[::1], f8[::1], f8[:, ::1], i8[:, ::1], f8[:, :, ::1],"
-    " f8[:, ::1], f8[::1], f8, f8, f8, f8, f8, f8)"
+    " f8[:, ::1], f8[::1], f8[::1])"
 )
 
 
@@ -452,35 +456,20 @@ def feed(
     basis: Any,
     terms: Any,
     doubt: Any,
-    vertical: float,
-    rotation: float,
-    tau: float,
-    axial: float,
-    axial_tau: float,
-    drift: float,
+    knobs: Any,
 ) -> Any:
     """One message through the EKF: :func:`pair`, :func:`track`, then :func:`widen` of its
-    rows (``terms`` … ``drift`` as it takes them): one call from Python."""
+    rows (``terms``, ``doubt``, ``knobs`` as it takes them): one call from Python."""
     pt, z, avail, flags, fix = pair(kind, t, u, v, upper, fore, cam, ptr, t_seen, tp, counts, final)
     x, P, out = track(
         x, P, mon, nis_buf, tp, counts, pt, z, have, avail, flags, fix, ia, fa, x0, P0, mis, basis
     )
-    widen(out, terms, doubt, vertical, rotation, tau, axial, axial_tau, drift)
+    widen(out, terms, doubt, knobs)
     return x, P, out
 
 
 @jit
-def widen(
-    out: Any,
-    terms: Any,
-    doubt: Any,
-    vertical: float,
-    rotation: float,
-    tau: float,
-    axial: float,
-    axial_tau: float,
-    drift: float,
-) -> None:
+def widen(out: Any, terms: Any, doubt: Any, knobs: Any) -> None:
     """The reported σ of each angle (rows 12–16 of ``out`` (19, N), degrees, in place): the
     filter's σ with ``terms`` (3, 5) squared: the systematic floor, the share of the angle
     (rows 1–5), the doubt after a large shoulder rotation; and pronation's with a vertical
@@ -489,9 +478,12 @@ def widen(
     shoulder rotation (row 3) at the rows' times (row 0). Then the two terms of
     :func:`unobserved` (``axial`` share, ``axial_tau`` s, ``drift`` deg/s; state
     ``doubt[2:]``): rotation and pronation's split while the elbow is straight, pronation's
-    drift while the forearm hangs. NaN (no angle) stays NaN.
+    drift while the forearm hangs. The six settings are ``knobs`` (6,) (``K_*``). NaN (no
+    angle) stays NaN.
     One message's rows per call: per row, the arithmetic of the array form it replaced, in
     the same order (the same numbers bit for bit); the state makes any grouping give the same."""
+    vertical, rotation, tau = knobs[K_VERTICAL], knobs[K_ROTATION], knobs[K_TAU]
+    axial, axial_tau, drift = knobs[K_AXIAL], knobs[K_AXIAL_TAU], knobs[K_DRIFT]
     n = out.shape[1]
     use_doubt = False
     use_new = axial != 0.0 or drift != 0.0

@@ -86,8 +86,10 @@ class TrackerState:
     doubt: F64 = field(
         default_factory=lambda: np.array([math.nan, -math.inf, 0.0, 0.0, *[math.nan] * 3])
     )
-    # the σ's terms: floor², share², doubt², (3, 5) (:func:`.steps.widen`)
+    # the σ's terms: floor², share², doubt², (3, 5), and its scalar settings (6,)
+    # (:func:`.steps.widen`, ``steps.K_*``)
     widen: F64 = field(default_factory=lambda: np.zeros((3, 5)))
+    knobs: F64 = field(default_factory=lambda: np.zeros(6))
 
     @property
     def steps(self) -> int:
@@ -133,6 +135,13 @@ def initial_state(params: WearableParams) -> TrackerState:
     state = TrackerState(model, tp, have, x0, P0, x0, P0, mon, nis_buf, counts)
     terms = (params.sigma_floor_deg, params.sigma_share, params.sigma_doubt)
     state.widen = np.square(np.array(terms, dtype=np.float64)).reshape(3, 5)
+    k = state.knobs
+    k[steps.K_VERTICAL] = params.sigma_pronation_vertical_deg
+    k[steps.K_ROTATION] = params.doubt_rotation_deg
+    k[steps.K_TAU] = params.doubt_tau_s
+    k[steps.K_AXIAL] = params.sigma_axial_share
+    k[steps.K_AXIAL_TAU] = params.axial_tau_s
+    k[steps.K_DRIFT] = params.pronation_drift_dps
     return state
 
 
@@ -243,9 +252,7 @@ def _run(
         state.x, state.P, out = steps.feed(
             kind, t, u, v, final, upper, fore, cam, state.ptr, state.t_seen, state.x, state.P,
             state.mon, state.nis_buf, state.tp, state.counts, state.have, ia, fa, x0, P0,
-            model.mis_idx, model.mis_basis, state.widen, state.doubt,
-            params.sigma_pronation_vertical_deg, params.doubt_rotation_deg, params.doubt_tau_s,
-            params.sigma_axial_share, params.axial_tau_s, params.pronation_drift_dps,
+            model.mis_idx, model.mis_basis, state.widen, state.doubt, state.knobs,
         )  # fmt: skip
     else:  # the UKF's update in Python between the same bookkeeping
         t, z, avail, flags, fix = steps.pair(
@@ -271,24 +278,21 @@ def _run(
                 ak, int(flags[k]), float(fix[k]), nis, ia, fa, out, k,
             )  # fmt: skip
         state.x, state.P = x, P
-        _widen(params, state, out)
+        _widen(state, out)
     _count(state)
     return cast(F64, out)
 
 
-def _widen(params: WearableParams, state: TrackerState, out: F64) -> None:
+def _widen(state: TrackerState, out: F64) -> None:
     """The reported σ of each angle (rows 12–16 of ``out``, degrees, in place), compiled
     (:func:`.steps.widen`): the filter's σ with the systematic floor, the share of the angle,
     the doubt after a large shoulder rotation, pronation's with a vertical forearm, and the
     bounds on what no sensor sees (:class:`WearableParams` ``sigma_floor_deg``,
     ``sigma_share``, ``sigma_doubt``, ``doubt_rotation_deg``, ``doubt_tau_s``,
     ``sigma_pronation_vertical_deg``, ``sigma_axial_share``, ``axial_tau_s``,
-    ``pronation_drift_dps``); NaN (an angle not available) stays NaN."""
-    steps.widen(
-        out, state.widen, state.doubt, params.sigma_pronation_vertical_deg,
-        params.doubt_rotation_deg, params.doubt_tau_s, params.sigma_axial_share,
-        params.axial_tau_s, params.pronation_drift_dps,
-    )  # fmt: skip
+    ``pronation_drift_dps``, which :func:`initial_state` put into ``state.widen`` and
+    ``state.knobs``); NaN (an angle not available) stays NaN."""
+    steps.widen(out, state.widen, state.doubt, state.knobs)
 
 
 ROW_KEYS = (*COLUMNS, *STD_COLUMNS, "flags")

@@ -588,7 +588,7 @@ def test_reported_sigma_widening_keeps_missing_angles_missing():
     out[12:17, 0] = 0.5
     out[4:6, 1] = np.nan
     out[15:17, 1] = np.nan
-    tracker._widen(p, tracker.initial_state(p), out)
+    tracker._widen(tracker.initial_state(p), out)
     want = np.sqrt(0.25 + np.array([1.0, 1.0, 1.0, 4.0, 4.0]) + (0.1 * out[1:6, 0]) ** 2)
     want[4] = np.sqrt(want[4] ** 2 + (3.0 * 0.64) ** 2)
     np.testing.assert_allclose(out[12:17, 0], want)
@@ -645,7 +645,7 @@ def test_compiled_widening_matches_the_array_form_bit_for_bit():
     got = out.copy()
     for i in range(0, n, 13):
         part = got[:, i : i + 13].copy()
-        tracker._widen(p, state, part)
+        tracker._widen(state, part)
         got[:, i : i + 13] = part
     np.testing.assert_array_equal(got[12:17], want)
     assert np.isnan(want).any() and (h > 1.0).any()  # missing angles and the doubt in play
