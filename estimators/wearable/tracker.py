@@ -135,13 +135,16 @@ def initial_state(params: WearableParams) -> TrackerState:
     state = TrackerState(model, tp, have, x0, P0, x0, P0, mon, nis_buf, counts)
     terms = (params.sigma_floor_deg, params.sigma_share, params.sigma_doubt)
     state.widen = np.square(np.array(terms, dtype=np.float64)).reshape(3, 5)
-    k = state.knobs
-    k[steps.K_VERTICAL] = params.sigma_pronation_vertical_deg
-    k[steps.K_ROTATION] = params.doubt_rotation_deg
-    k[steps.K_TAU] = params.doubt_tau_s
-    k[steps.K_AXIAL] = params.sigma_axial_share
-    k[steps.K_AXIAL_TAU] = params.axial_tau_s
-    k[steps.K_DRIFT] = params.pronation_drift_dps
+    state.knobs = np.array(  # in steps.K_* order
+        [
+            params.sigma_pronation_vertical_deg,
+            params.doubt_rotation_deg,
+            params.doubt_tau_s,
+            params.sigma_axial_share,
+            params.axial_tau_s,
+            params.pronation_drift_dps,
+        ]
+    )
     return state
 
 
