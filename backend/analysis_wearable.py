@@ -121,14 +121,14 @@ class WearableRun:
         """The rows completed since the last call (None if there are none)."""
         new = self.parts[self._taken :]
         if len(self.parts) >= 256:  # all taken now: merged (a part per message costs memory)
-            self.parts = [_join(self.parts)]
+            self.parts = [tracker.join_blocks(self.parts)]
         self._taken = len(self.parts)
         if not new:
             return None
-        return tracker.block_rows(_join(new))
+        return tracker.block_rows(tracker.join_blocks(new))
 
     def rows(self) -> tracker.Rows:
-        return tracker.block_rows(_join(self.parts))
+        return tracker.block_rows(tracker.join_blocks(self.parts))
 
     def report(self) -> dict[str, Any]:
         return make_report(
@@ -140,12 +140,6 @@ class WearableRun:
             self.lines,
             self.cycle_starts,
         )
-
-
-def _join(blocks: list[F64]) -> F64:
-    if len(blocks) == 1:
-        return blocks[0]
-    return np.concatenate(blocks, axis=1) if blocks else np.zeros((len(tracker.ROW_KEYS), 0))
 
 
 def analyze(

@@ -99,6 +99,25 @@ def device_inputs(prefix: str = DEFAULT_PREFIX) -> tuple[str, ...]:
     )
 
 
+# The service's own keys between its processes (not §1: "@" is outside a device name, so
+# they cannot collide with a device's).
+
+
 def devices_notice(prefix: str = DEFAULT_PREFIX) -> str:
-    """The API node's list of the devices it heard recently (service-internal, not §1)."""
+    """The API node's list of the devices it heard recently."""
     return f"{prefix}/@devices"
+
+
+def worker_key(prefix: str, holder: str) -> str:
+    """A worker's liveliness token."""
+    return f"{prefix}/@worker/{holder}"
+
+
+def control_key(prefix: str, device: str = "*") -> str:
+    """The workers' queryable for the API node's session commands."""
+    return f"{prefix}/@ctl/{device}"
+
+
+def feed_key(prefix: str, holder: str = "*") -> str:
+    """A worker's dashboard messages for the API node's WebSockets."""
+    return f"{prefix}/@feed/{holder}"

@@ -45,7 +45,6 @@ from backend.live import feed, files, lease
 from backend.live.budget import DEVICE_FLOOR_BYTES
 from backend.live.hub import Client, dumps
 from backend.live.manager import COMMAND_TIMEOUT_S, LiveManager
-from backend.live.node import control_key, feed_key, worker_key
 from backend.live.run import session_params
 from backend.schemas.live import StatusMsg
 from backend.settings import Settings
@@ -148,7 +147,9 @@ class Gateway(LiveManager):
             def on_feed(sample: zenoh.Sample) -> None:
                 loop.call_soon_threadsafe(self._on_feeds, sample.payload.to_bytes())
 
-            self._feed_sub = self.zio.session.declare_subscriber(feed_key(self.prefix), on_feed)
+            self._feed_sub = self.zio.session.declare_subscriber(
+                keys.feed_key(self.prefix), on_feed
+            )
             self._start_watch(self.zio.session)
         s = self.settings
         # the children join this node's router, or the router this node is a client of
@@ -178,7 +179,7 @@ class Gateway(LiveManager):
             loop.call_soon_threadsafe(seen, str(sample.key_expr).rsplit("/", 1)[-1], up)
 
         sub = self.zio.session.liveliness().declare_subscriber(
-            worker_key(self.prefix, "*"), on_token, history=True
+            keys.worker_key(self.prefix, "*"), on_token, history=True
         )
         try:
             await asyncio.wait_for(ready.wait(), WORKERS_START_S)
@@ -222,10 +223,9 @@ class Gateway(LiveManager):
                 else:
                     if not self.admission.allows(device):
                         self.admission.refuse(device, wall)
-                    elif device not in self.heard:
-                        new.append(device)
-                        self.heard[device] = now
                     else:
+                        if device not in self.heard:
+                            new.append(device)
                         self.heard[device] = now
                 sample = channel.try_recv()
         return new
@@ -441,7 +441,7 @@ class Gateway(LiveManager):
         if session is None:
             raise LiveUnavailable("no Zenoh session")
         replies = session.get(
-            control_key(self.prefix, device),
+            keys.control_key(self.prefix, device),
             payload=orjson.dumps(body),
             target=zenoh.QueryTarget.ALL,
             timeout=COMMAND_TIMEOUT_S,

@@ -85,18 +85,6 @@ TAKE_PER_STEP = 8  # new leases per lease step at most (back-pressure is checked
 START_QUERY = b'{"op":"start"'
 
 
-def worker_key(prefix: str, holder: str) -> str:
-    return f"{prefix}/@worker/{holder}"
-
-
-def control_key(prefix: str, device: str = "*") -> str:
-    return f"{prefix}/@ctl/{device}"
-
-
-def feed_key(prefix: str, holder: str = "*") -> str:
-    return f"{prefix}/@feed/{holder}"
-
-
 class FeedForwarder:
     """Stands in the worker's hub as one dashboard client: the therapist messages of all the
     worker's devices go on Zenoh to the API nodes (which fan them out to their WebSockets),
@@ -280,7 +268,7 @@ class WorkerNode(LiveManager):
         assert zio is not None and zio.session is not None
         s = zio.session
         loop = asyncio.get_running_loop()
-        self._token = s.liveliness().declare_token(worker_key(self.prefix, self.held.holder))
+        self._token = s.liveliness().declare_token(keys.worker_key(self.prefix, self.held.holder))
 
         def on_worker(sample: zenoh.Sample) -> None:
             holder = str(sample.key_expr).rsplit("/", 1)[-1]
@@ -288,7 +276,9 @@ class WorkerNode(LiveManager):
             loop.call_soon_threadsafe(self._worker_seen, holder, alive)
 
         self._extra.append(
-            s.liveliness().declare_subscriber(worker_key(self.prefix, "*"), on_worker, history=True)
+            s.liveliness().declare_subscriber(
+                keys.worker_key(self.prefix, "*"), on_worker, history=True
+            )
         )
 
         def on_query(query: zenoh.Query) -> None:
@@ -299,14 +289,14 @@ class WorkerNode(LiveManager):
             # a start for a device nobody may hold yet: this worker tries to take it
             loop.call_soon_threadsafe(self._control, query, device, payload)
 
-        self._extra.append(s.declare_queryable(control_key(self.prefix), on_query))
+        self._extra.append(s.declare_queryable(keys.control_key(self.prefix), on_query))
 
         def on_notice(sample: zenoh.Sample) -> None:
             loop.call_soon_threadsafe(self._noticed, sample.payload.to_bytes())
 
         self._extra.append(s.declare_subscriber(keys.devices_notice(self.prefix), on_notice))
         self._feed_pub = s.declare_publisher(
-            feed_key(self.prefix, self.held.holder),
+            keys.feed_key(self.prefix, self.held.holder),
             congestion_control=zenoh.CongestionControl.DROP,
         )
         self._feed = FeedForwarder(self._feed_pub)

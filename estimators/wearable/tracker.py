@@ -205,13 +205,9 @@ def run(
 ) -> tuple[Rows, TrackerState]:
     """Batch: all messages ``(kind, t, u, v)`` in arrival order, then :func:`flush`."""
     state = initial_state(params)
-    parts: list[Rows] = []
-    for kind, t, u, v in streams:
-        rows, state = feed(params, state, kind, t, u, v)
-        parts.append(rows)
-    rows, state = flush(params, state)
-    parts.append(rows)
-    return concat(parts), state
+    blocks = [feed_block(params, state, kind, t, u, v) for kind, t, u, v in streams]
+    blocks.append(flush_block(params, state))
+    return block_rows(join_blocks(blocks)), state
 
 
 class _Block(dict[str, F64]):
@@ -228,11 +224,17 @@ def block_rows(out: F64) -> Rows:
     return rows
 
 
+def join_blocks(blocks: list[F64]) -> F64:
+    """Messages' (19, N) blocks as one (the one itself when there is one)."""
+    if len(blocks) == 1:
+        return blocks[0]
+    return np.concatenate(blocks, axis=1) if blocks else np.zeros((len(ROW_KEYS), 0))
+
+
 def concat(parts: list[Rows]) -> Rows:
     if parts and all(isinstance(p, _Block) for p in parts):
-        return block_rows(np.concatenate([p.block for p in parts], axis=1))  # type: ignore[attr-defined]
-    keys = (*COLUMNS, *STD_COLUMNS, "flags")
-    return {k: np.concatenate([p[k] for p in parts]) if parts else np.zeros(0) for k in keys}
+        return block_rows(join_blocks([p.block for p in parts]))  # type: ignore[attr-defined]
+    return {k: np.concatenate([p[k] for p in parts]) if parts else np.zeros(0) for k in ROW_KEYS}
 
 
 def _run(
