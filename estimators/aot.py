@@ -7,7 +7,8 @@ compiled by numba's JIT, then the module), less with numba's cache warm.
     python -m estimators.aot [--check] [--out DIR]
 
 ``--check`` only reports (exit status 1 if a kernel is missing from the built module).
-Build-time only: ``./run``'s set-up and the Docker image run it; without the module every
+Build-time only (at run time only :func:`mode`, which reports what a process runs):
+``./run``'s set-up and the Docker image run it; without the module every
 kernel is numba's JIT, the same code. numba marks ``pycc`` as pending deprecation (0.57) with
 no replacement yet: the day it goes, the fallback keeps everything working, slower to start.
 """
@@ -21,9 +22,11 @@ import sys
 import warnings
 from pathlib import Path
 from types import ModuleType
-from typing import Any
+from typing import Any, Literal
 
 from estimators import jit
+
+Mode = Literal["ahead-of-time", "jit", "interpreted"]
 
 # the modules holding the kernels declared with ``aot``
 KERNEL_MODULES = (
@@ -48,6 +51,21 @@ def kernels() -> dict[str, jit.Kernel]:
 def missing(module: ModuleType | None) -> list[str]:
     """Export names of the current kernels that ``module`` does not hold."""
     return [k for k in kernels() if module is None or not hasattr(module, k)]
+
+
+def mode() -> Mode:
+    """How this process runs the kernels: ``interpreted`` (``NUMBA_DISABLE_JIT=1``), ``jit``
+    (numba's JIT: the module not built here, built from older sources, or ``REHAB_AOT=0``)
+    or ``ahead-of-time`` (every kernel from the built module). Imports the kernels' modules."""
+    if os.environ.get("NUMBA_DISABLE_JIT", "0") != "0":
+        return "interpreted"
+    if os.environ.get("REHAB_AOT") == "0":
+        return "jit"
+    try:
+        built: ModuleType | None = importlib.import_module(jit.MODULE)
+    except ImportError:
+        built = None
+    return "jit" if missing(built) else "ahead-of-time"
 
 
 def build(out_dir: Path) -> Path:

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 from importlib.metadata import PackageNotFoundError, version
-from typing import Literal
 
 from fastapi import APIRouter
 from sqlalchemy import text
 
 from backend.deps import DB
 from backend.schemas.health import HealthOut
+from estimators import aot
 
 router = APIRouter(tags=["health"])
 
@@ -18,8 +18,9 @@ try:
 except PackageNotFoundError:  # running from a source tree that was never installed
     _VERSION = "0+unknown"
 
-# the estimators run interpreted (a field kept for clients that read it)
-_ESTIMATORS: Literal["interpreted"] = "interpreted"
+# how the kernels run (the service's processes share the build and the environment): once,
+# at start-up, as it imports the kernels' modules
+_ESTIMATORS = aot.mode()
 
 
 @router.get("/health")

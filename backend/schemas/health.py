@@ -4,10 +4,12 @@ from typing import Literal
 
 from pydantic import BaseModel
 
+from estimators.aot import Mode
+
 
 class HealthOut(BaseModel):
     status: Literal["ok", "degraded"]
     version: str
     database: Literal["ok", "unreachable"]
-    # how the estimators run: always interpreted (the optional compiled build is gone)
-    estimators: Literal["interpreted"]
+    # how the kernels run: compiled ahead of time, numba's JIT, or interpreted (estimators.aot)
+    estimators: Mode

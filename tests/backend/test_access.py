@@ -15,6 +15,7 @@ from backend.auth.guards import OverlayDenied, verify_overlay_token
 from backend.db.base import utcnow
 from backend.db.devices import touch_device
 from backend.deps import AppState
+from estimators import aot
 
 pytestmark = pytest.mark.anyio
 
@@ -70,8 +71,8 @@ async def test_docs_and_health_are_public(client: httpx.AsyncClient) -> None:
     health = await client.get("/api/health")
     assert health.status_code == 200
     assert set(health.json()) == {"status", "version", "database", "estimators"}
+    assert health.json()["estimators"] == aot.mode()
     assert health.json()["database"] == "ok"
-    assert health.json()["estimators"] == "interpreted"
 
 
 async def test_garbage_tokens_are_rejected(app: FastAPI, client: httpx.AsyncClient) -> None:

@@ -11,6 +11,7 @@ import os
 import subprocess
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from types import ModuleType
 from typing import Any
 
@@ -261,3 +262,25 @@ def test_the_helpers_do_not_import_numba() -> None:
             env={**os.environ, "REHAB_AOT": env},
         ).stdout
         assert out.split() == ["False"]
+
+
+def test_the_mode_says_how_the_kernels_run(built: ModuleType) -> None:
+    """``aot.mode()`` (the service's ``/api/health``): ahead of time with the module current,
+    numba's JIT without it (``REHAB_AOT=0``, or a module built into another directory), and
+    interpreted with numba's JIT off."""
+
+    def mode(env: dict[str, str]) -> str:
+        return subprocess.run(
+            [sys.executable, "-c", "from estimators import aot; print(aot.mode())"],
+            capture_output=True,
+            text=True,
+            check=True,
+            env={**os.environ, **env},
+        ).stdout.strip()
+
+    assert mode({"REHAB_AOT": "0"}) == "jit"
+    assert mode({"NUMBA_DISABLE_JIT": "1"}) == "interpreted"
+    if Path(built.__file__ or "").resolve().parent == aot.PACKAGE_DIR:
+        assert mode({"REHAB_AOT": "1"}) == "ahead-of-time"
+    else:  # built by the fixture elsewhere: the package holds none (or a stale one)
+        assert mode({"REHAB_AOT": "1"}) == "jit"
