@@ -71,6 +71,7 @@ PAPER_T9 = {
 PAPER_METHOD = {
     "gyro_bias": False,
     "mounting_states": False,
+    "acc_bias": False,
     "sigma_floor_deg": (0.0,) * 5,
     "sigma_share": (0.0,) * 5,
     "sigma_doubt": (0.0,) * 5,
@@ -78,7 +79,24 @@ PAPER_METHOD = {
     "sigma_axial_share": 0.0,
     "pronation_drift_dps": 0.0,
     "vertical_init_deg": 0.0,
+    "sigma_mounting_gain": 0.0,
 }
+# a candidate for the product (docs/benchmarks.md, "Per-angle confidence"): ``--candidate``
+# runs it in place of the product's defaults
+CANDIDATE = {
+    "mounting_turn": "exact",
+    "acc_bias": True,
+    "sigma_mounting_gain": 1.0,
+    "vertical_init_deg": 2.0,
+}
+PRODUCT: dict[str, Any] = {}  # what the product's rows run with (CANDIDATE with --candidate)
+
+
+def _params(sim_params: dict[str, Any], **kw: Any) -> WearableParams:
+    """A simulated session's parameters with the product's settings, then ``kw``'s."""
+    return WearableParams.from_json(sim_params, **{**PRODUCT, **kw})
+
+
 PAPER_T10 = {"Shoulder": (4.7, 0.9, 5.9, 0.8), "Elbow": (5.9, 1.0, 6.9, 1.4)}
 
 
@@ -435,7 +453,7 @@ def wheel_run(
     if cam:
         cfg = replace(cfg, cam=replace(cfg.cam, **cam))
     sim = w.simulate(cfg)
-    p = WearableParams.from_json(sim.params, **kw)
+    p = _params(sim.params, **kw)
     t0 = time.process_time()
     rows, _ = tracker.run(p, w.tracker_inputs(sim.messages))
     cost = (time.process_time() - t0) / len(sim.t)
@@ -546,9 +564,7 @@ def coverage_run(move: str, seed: int, dur: float, camera: bool, **kw: Any) -> F
     sure whose |error| exceeds it ("wrongly sure"), over the moving phase (after the start's
     rest; the wheel also after its approach)."""
     sim = w.simulate(w.WearableSimConfig(move=move, duration_s=dur, seed=seed, camera=camera))
-    rows, _ = tracker.run(
-        WearableParams.from_json(sim.params, **kw), w.tracker_inputs(sim.messages)
-    )
+    rows, _ = tracker.run(_params(sim.params, **kw), w.tracker_inputs(sim.messages))
     m = sim.t >= (6.0 if move == "shoulder_wheel" else 3.0)
     out = np.full((5, 5), np.nan)
     for j, c in enumerate(ANGLES):
@@ -634,9 +650,7 @@ def rom_elbow(seeds: int, first: int) -> None:
             for s in range(seeds):
                 cfg = w.WearableSimConfig(move="rom", duration_s=60.0, seed=first + s, camera=cam)
                 sim = w.simulate(replace(cfg, imu=replace(cfg.imu, **imu)))
-                rows, _ = tracker.run(
-                    WearableParams.from_json(sim.params), w.tracker_inputs(sim.messages)
-                )
+                rows, _ = tracker.run(_params(sim.params), w.tracker_inputs(sim.messages))
                 m = sim.t >= 3.0
                 e = rows["elbow_flexion_deg"][m] - sim.theta_deg[m, 3]
                 bad = (rows["elbow_flexion_std_deg"][m] <= SURE_STD_DEG) & (
@@ -681,9 +695,7 @@ def drift(dur: float) -> None:
             sim = w.simulate(
                 w.WearableSimConfig(move="reaching", duration_s=dur, seed=seed, camera=False)
             )
-            rows, _ = tracker.run(
-                WearableParams.from_json(sim.params, **kw), w.tracker_inputs(sim.messages)
-            )
+            rows, _ = tracker.run(_params(sim.params, **kw), w.tracker_inputs(sim.messages))
             est = np.column_stack([rows[c] for c in w.COLUMNS])
             h = heading_error(est, sim.theta_deg)
             k30 = np.searchsorted(sim.t, 30.0)
@@ -696,7 +708,7 @@ def drift(dur: float) -> None:
 
 def speed(dur: float) -> None:
     sim = w.simulate(w.WearableSimConfig(move="reaching", duration_s=dur, seed=0, camera=False))
-    p = WearableParams.from_json(sim.params)
+    p = _params(sim.params)
     inputs = w.tracker_inputs(sim.messages)
     t0, c0 = time.perf_counter(), time.process_time()
     tracker.run(p, inputs[:20])  # loads the compiled kernel (compiles it on a first run)
@@ -723,7 +735,10 @@ def main(argv: list[str] | None = None) -> int:
         "--first-seed", type=int, default=100, help="coverage: first seed (0: the sizing seeds)"
     )
     ap.add_argument("--only", default="table6,table6-sens,fig5,fig6,fig8,wheel,drift,speed")
+    ap.add_argument("--candidate", action="store_true", help="the product's rows run CANDIDATE")
     a = ap.parse_args(argv)
+    PRODUCT.clear()
+    PRODUCT.update(CANDIDATE if a.candidate else {})
     only = set(a.only.split(","))
     q = a.quick
     print(

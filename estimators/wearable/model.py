@@ -54,7 +54,7 @@ class Model:
     i_th: I64
     i_bu: I64  # gyro biases
     i_bf: I64
-    i_au: I64  # model B body accelerations
+    i_au: I64  # model B body accelerations, or model A accelerometer biases (product)
     i_af: I64
     use_forearm: bool
     src_cols: I64  # columns of dh's Jacobians ([θ̈ 5, θ̇ 5, θ 5]) that the state has ...
@@ -62,7 +62,7 @@ class Model:
     # the compiled kernel's view of the same (estimators.wearable.kernel)
     theta_idx: I64  # (3, 5) state index of θ̈, θ̇, θ of each joint, −1 if not estimated
     bias_idx: I64  # (6, 3) gyro-bias state added to each sensor slot's row, −1 if none
-    body_idx: I64  # (6, 3) model B body-acceleration state added to a slot's row, −1 if none
+    body_idx: I64  # (6, 3) additive accelerometer state (B: body acceleration; A: bias), −1: none
     q_rate: F64  # (n,) process noise variance per second of each state (eq. 4)
     gm: I64  # GM-1 states (model B)
     r_slot: F64  # (6,) noise variance of each slot's rows (eq. 19)
@@ -70,7 +70,7 @@ class Model:
     packed: tuple[I64, F64]  # all of the above for kernel.ekf_step_packed / kernel.emit
     i_mu: I64  # mounting-misalignment states (.mounting)
     i_mf: I64
-    mis_idx: I64  # (6, 3) δ states of each slot's IMU, −1: none
+    mis_idx: I64  # (6, 4) δ states of each slot's IMU, −1: none; then 1: the exact turn
     mis_basis: F64  # (6, 3, 3) their directions in the IMU frame (.mounting)
 
     @classmethod
@@ -92,11 +92,14 @@ class Model:
         use_f = p.forearm and any(j >= 3 for j in joints)
         i_bu = take(3 if p.gyro_bias and order >= 1 else 0)
         i_bf = take(3 if p.gyro_bias and order >= 1 and use_f else 0)
-        i_au = take(3 if p.model == "B" else 0)
-        i_af = take(3 if p.model == "B" and use_f else 0)
+        # model B's GM-1 body accelerations, or the product's accelerometer biases (model A):
+        # additive states of the accelerometer rows either way
+        acc = p.model == "B" or (p.model == "A" and p.acc_bias)
+        i_au = take(3 if acc else 0)
+        i_af = take(3 if acc and use_f else 0)
         i_mu = take(3 if p.mounting_states else 0)
         i_mf = take(2 if p.mounting_states and use_f else 0)
-        mis_idx = np.full((6, 3), -1, dtype=np.intp)
+        mis_idx = np.full((6, 4), -1, dtype=np.intp)
         basis = np.zeros((6, 3, 3))
         for slots, idx in (
             ((kernel.GYR_U, kernel.ACC_U), i_mu),
@@ -107,6 +110,7 @@ class Model:
                 b = np.eye(3) if idx is i_mu else _across_long_axis(p.geometry().R_FI)
                 for slot in slots:
                     mis_idx[slot, : idx.size] = idx
+                    mis_idx[slot, 3] = p.mounting_turn == "exact"
                     basis[slot, :, : idx.size] = b
         src: list[int] = []
         dst: list[int] = []
@@ -141,10 +145,14 @@ class Model:
         q_rate[i_bf] = (p.gyro_bias_walk_dps_per_sqrt_s * DEG) ** 2
         q_rate[i_mu] = (p.mounting_walk_deg_per_sqrt_s * DEG) ** 2
         q_rate[i_mf] = (p.mounting_walk_deg_per_sqrt_s * DEG) ** 2
+        if p.model == "A":  # accelerometer biases: a random walk (B's GM-1 is in kernel.fq)
+            q_rate[i_au] = q_rate[i_af] = p.acc_bias_walk_ms2_per_sqrt_s**2
         sg, sa, sp = (p.sigma_gyr_dps * DEG) ** 2, p.sigma_acc_ms2**2, p.sigma_pos_m**2
         geo = p.geometry()
         f = np.float64
-        gm = np.concatenate((i_au, i_af)).astype(np.intp)
+        gm = (
+            np.concatenate((i_au, i_af)).astype(np.intp) if p.model == "B" else np.zeros(0, np.intp)
+        )
         r_slot = np.array([sg, sa, sg, sa, sp, sp])
         geo_args = (
             float(geo.upper_arm_m),
@@ -235,6 +243,8 @@ class Model:
         var[self.i_bf] = (p.gyro_bias_sigma_dps * DEG) ** 2
         s0 = p.body_acc_init_sigma_ms2
         s0 = 0.1 * p.body_acc_sigma_ms2 if s0 is None else s0
+        if p.model == "A":
+            s0 = p.acc_bias_sigma_ms2
         var[self.i_au] = s0**2
         var[self.i_af] = s0**2
         var[self.i_mu] = (p.mounting_sigma_deg * DEG) ** 2

@@ -3,21 +3,34 @@ from its nominal mounting, estimated with the joint angles.
 
 A strap puts an IMU a few degrees off its nominal orientation ``R_UI`` (``R_FI``). With the true
 mounting ``R_UI·Exp(δ)`` (``δ`` (3,) rad, a rotation vector in the IMU frame) every reading of
-that IMU is the nominal prediction ``v`` (eqs. 12–15) turned by ``Exp(−δ)``; to first order
+that IMU is the nominal prediction ``v`` (eqs. 12–15) turned by ``Exp(−δ)``. The product
+takes it to first order (``mounting_turn="first_order"``),
 
     h = v + v × δ,   ∂h/∂δ = [v]×,   ∂h/∂x = (1 + [·]×δ) ∂v/∂x,
 
-applied to the gyro and the accelerometer rows of the same IMU (one rigid body) before its
-gyro bias is added. ``δ = B η`` with ``B`` unit vectors in the IMU frame: all three axes for
-the upper-arm IMU, but for the forearm IMU only the two across the forearm's long axis: a turn
-about it is the same reading as the pronation θ5 (nothing distal to the forearm moves with it,
-and the wrist is on that axis), so no sensor here can tell them apart. (About the upper arm's
-long axis the forearm IMU tells the mounting from θ2 once the elbow bends.) ``η`` is a random
-constant (prior σ and a slow walk from the parameters).
+or exactly (``"exact"``, a candidate),
 
-The accelerometers cannot tell ``δ`` about the flexion axis from the flexion itself (both turn
-gravity the same way in the IMU frame): the camera's positions make it observable. Without a
-camera ``δ`` stays at its prior and only widens the angles' σ where it is unobservable.
+    h = Exp(−δ)·v,   ∂h/∂δ = Exp(−δ) [v]× J_r(−δ),   ∂h/∂x = Exp(−δ) ∂v/∂x
+
+(``J_r`` SO(3)'s right Jacobian), applied to the gyro and the accelerometer rows of the same
+IMU (one rigid body) before its additive states (gyro bias, accelerometer bias) are added.
+The first order lengthens a reading by about |δ⊥v|²/2: an accelerometer's 2.5 % scale error
+pulls the forearm's δ to 14° at the start's rest and the elbow the other way, while the same
+lengthening holds δ near nominal where nothing else tells it from an angle
+(docs/benchmarks.md, "Per-angle confidence").
+
+``δ = B η`` with ``B`` unit vectors in the IMU frame: all three axes for the upper-arm IMU,
+but for the forearm IMU only the two across the forearm's long axis: a turn about it is the
+same reading as the pronation θ5 (nothing distal to the forearm moves with it, and the wrist
+is on that axis), so no sensor here can tell them apart. (About the upper arm's long axis the
+forearm IMU tells the mounting from θ2 once the elbow bends.) ``η`` is a random constant
+(prior σ and a slow walk from the parameters).
+
+Gravity and the gyros cannot tell ``δ`` about an angle's own axis from the angle (elbow
+flexion and the forearm IMU's turn about the flexion axis turn both readings the same way);
+the camera's positions can, and without a camera only the size of the kinematic
+accelerations, at second order (``sigma_mounting_gain`` adds the states' departure from
+nominal to the paired angles' σ while there is no camera: :func:`.steps.finish`).
 """
 
 from __future__ import annotations
@@ -31,14 +44,79 @@ from estimators.wearable import kernel
 
 
 @jit
+def _turn(d: Any) -> Any:
+    """``Exp(−d)`` (3, 3) and ``J_r(−d)`` (3, 3) for a rotation vector ``d`` (3,) rad
+    (Rodrigues; their series near zero)."""
+    th2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+    th = np.sqrt(th2)
+    if th < 1e-4:
+        a, b, c = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
+    else:
+        a, b, c = np.sin(th) / th, (1.0 - np.cos(th)) / th2, (th - np.sin(th)) / (th2 * th)
+    K = np.zeros((3, 3))  # [−d]×
+    K[0, 1], K[0, 2], K[1, 2] = d[2], -d[1], d[0]
+    K[1, 0], K[2, 0], K[2, 1] = -d[2], d[1], -d[0]
+    K2 = K @ K
+    return np.eye(3) + a * K + b * K2, np.eye(3) - b * K + c * K2
+
+
+@jit
+def _additive(k: int, s: int, bias: Any, body_idx: Any) -> bool:
+    """Whether state ``k`` is one of slot ``s``'s additive states (not turned)."""
+    b, g = bias[s], body_idx[s]
+    return bool(k == b[0] or k == b[1] or k == b[2] or k == g[0] or k == g[1] or k == g[2])
+
+
+@jit
+def _turned(
+    x: Any, H: Any, row: int, s: int, d: Any, v: Any, bias: Any, body_idx: Any, mis: Any,
+    basis: Any, h: Any, exact: bool,
+) -> None:  # fmt: skip
+    """Slot ``s``'s rows ``h``, ``H`` (from ``row``) turned by ``δ = d``: to first order
+    ``h += v × δ``, ``H += (∂v/∂x) × δ``, ``∂h/∂η_k = v × b_k`` (the product's), or exactly
+    ``h = Exp(−δ) v``, ``∂h/∂x = Exp(−δ) ∂v/∂x``, ``∂h/∂η_k = Exp(−δ) (v × J_r(−δ) b_k)``."""
+    R, J = _turn(d) if exact else (np.eye(3), np.eye(3))  # first order: Exp's part is × δ
+    if exact:
+        for c in range(3):
+            h[row + c] += R[c, 0] * v[0] + R[c, 1] * v[1] + R[c, 2] * v[2] - v[c]
+    else:
+        h[row] += v[1] * d[2] - v[2] * d[1]
+        h[row + 1] += v[2] * d[0] - v[0] * d[2]
+        h[row + 2] += v[0] * d[1] - v[1] * d[0]
+    for k in range(x.shape[0]):
+        if _additive(k, s, bias, body_idx):
+            continue
+        j0, j1, j2 = H[row, k], H[row + 1, k], H[row + 2, k]
+        if exact:
+            for c in range(3):
+                H[row + c, k] = R[c, 0] * j0 + R[c, 1] * j1 + R[c, 2] * j2
+        else:
+            H[row, k] += j1 * d[2] - j2 * d[1]
+            H[row + 1, k] += j2 * d[0] - j0 * d[2]
+            H[row + 2, k] += j0 * d[1] - j1 * d[0]
+    for k in range(3):  # (with J = R = 1 the first order's own numbers, bit for bit)
+        if mis[s, k] < 0:
+            continue
+        b = np.zeros(3)
+        for c in range(3):
+            for e in range(3):
+                b[c] += J[c, e] * basis[s, e, k]
+        c0 = v[1] * b[2] - v[2] * b[1]
+        c1 = v[2] * b[0] - v[0] * b[2]
+        c2 = v[0] * b[1] - v[1] * b[0]
+        for c in range(3):
+            H[row + c, mis[s, k]] += R[c, 0] * c0 + R[c, 1] * c1 + R[c, 2] * c2
+
+
+@jit
 def misalign(
     x: Any, have: Any, h: Any, H: Any, bias: Any, body_idx: Any, mis: Any, basis: Any
 ) -> None:
     """Turn the predicted IMU rows ``h`` (m,) and ``H`` (m, n) of :func:`kernel.measure` by
     the misalignment states, in place: ``δ = Σ_k basis[s, :, k]·x[mis[s, k]]`` for slot ``s``
-    (``mis`` (6, 3) state indices, −1: none, e.g. the camera slots; ``basis`` (6, 3, 3) unit
-    vectors in the IMU frame); ``bias``/``body_idx`` as in ``measure``."""
-    n = x.shape[0]
+    (``mis`` (6, 4): three state indices, −1: none, e.g. the camera slots, then 1 for the
+    exact turn, 0 for the first order; ``basis`` (6, 3, 3) unit vectors in the IMU frame);
+    ``bias``/``body_idx`` as in ``measure`` (additive, not turned)."""
     row = 0
     for s in range(6):
         if not have[s]:
@@ -56,25 +134,7 @@ def misalign(
                     v[c] -= x[bias[s, c]]
                 if body_idx[s, c] >= 0:
                     v[c] -= x[body_idx[s, c]]
-            h[row] += v[1] * d[2] - v[2] * d[1]
-            h[row + 1] += v[2] * d[0] - v[0] * d[2]
-            h[row + 2] += v[0] * d[1] - v[1] * d[0]
-            for k in range(n):
-                if k == bias[s, 0] or k == bias[s, 1] or k == bias[s, 2]:
-                    continue
-                if k == body_idx[s, 0] or k == body_idx[s, 1] or k == body_idx[s, 2]:
-                    continue
-                j0, j1, j2 = H[row, k], H[row + 1, k], H[row + 2, k]
-                H[row, k] += j1 * d[2] - j2 * d[1]
-                H[row + 1, k] += j2 * d[0] - j0 * d[2]
-                H[row + 2, k] += j0 * d[1] - j1 * d[0]
-            for k in range(3):  # ∂(v × δ)/∂η_k = v × b_k
-                if mis[s, k] < 0:
-                    continue
-                b0, b1, b2 = basis[s, 0, k], basis[s, 1, k], basis[s, 2, k]
-                H[row, mis[s, k]] += v[1] * b2 - v[2] * b1
-                H[row + 1, mis[s, k]] += v[2] * b0 - v[0] * b2
-                H[row + 2, mis[s, k]] += v[0] * b1 - v[1] * b0
+            _turned(x, H, row, s, d, v, bias, body_idx, mis, basis, h, mis[s, 3] != 0)
         row += 3
 
 

@@ -3,7 +3,8 @@
 Noise defaults are the paper's table 5: σ_θ̈² = 1 (°/s²)² per 1 ms step, σ_ω² = 0.1 (°/s)²,
 σ_a² = 0.01 (m/s²)², σ_p² = 1e-4 m². The paper's model is ``model="A"`` with
 ``gyro_bias=False, mounting_states=False``; the product's default adds gyro-bias states (see
-:mod:`.model`) and mounting-misalignment states (:mod:`.mounting`).
+:mod:`.model`) and mounting-misalignment states (:mod:`.mounting`); accelerometer-bias states
+(``acc_bias``) and the exact mounting turn are selectable candidates.
 """
 
 from __future__ import annotations
@@ -115,6 +116,14 @@ class WearableParams:
     mounting_states: bool = True
     mounting_sigma_deg: float = 5.0  # prior σ of each component (a strap's few degrees)
     mounting_walk_deg_per_sqrt_s: float = 0.01  # slow change (skin and strap creep)
+    # how a mounting state turns its IMU's readings (:mod:`.mounting`): "first_order"
+    # (v + v × δ, the product's) or "exact" (Exp(−δ)·v, a candidate: docs/benchmarks.md)
+    mounting_turn: Literal["first_order", "exact"] = "first_order"
+    # candidate, model A: accelerometer-bias random constants per IMU, added to its rows like
+    # the gyro's (model B's body-acceleration states take those rows' slots; off = the paper's)
+    acc_bias: bool = False
+    acc_bias_sigma_ms2: float = 0.1  # prior σ of each component (a MEMS part's few 10 mg)
+    acc_bias_walk_ms2_per_sqrt_s: float = 0.001
     # The EKF's own P is overconfident about the whole arm's turn about the vertical (it takes
     # information from linearising at a slightly tilted estimate): the reported confidence
     # adds a drift bound that grows at this rate (a residual gyro bias about the vertical) and
@@ -128,7 +137,8 @@ class WearableParams:
     # neither the IMU's misalignment about the arm's axis nor the pose (tried: ε (u − u₀), no
     # better than a constant), so a constant: the least that keeps abduction and rotation
     # from being wrongly sure on more than 2 % of any camera-less wheel or reaching trial of
-    # seeds 0–9 (10: 2.3 %; 12: 1.1 %). A camera's fix bounds it as before. 0: the bound of
+    # seeds 0–9 (10: 2.3 %; 12: 1.1 %; with the candidate exact turn and accelerometer biases
+    # 2 is enough: docs/benchmarks.md). A camera's fix bounds it as before. 0: the bound of
     # the paper's method.
     vertical_init_deg: float = 12.0
     # The reported σ of each angle (θ0 θ1 θ2 θ4 θ5) adds what the filter's P cannot hold: the
@@ -172,6 +182,16 @@ class WearableParams:
     # about the forearm's axis is not seen): its σ² adds b², b growing at this rate × (2c² − 1)
     # (c as above), back to 0 as the forearm comes up.
     pronation_drift_dps: float = 0.4
+    # Without a camera an angle and its IMU's turn about the same axis are one quantity to
+    # gravity and the gyros; only the size of the kinematic accelerations splits them (second
+    # order, carrying soft tissue and scale errors), so the split slides (elbow 10–50° off in
+    # the ROM moves). While no camera position has come for ``camera_hold_s``, each angle's σ
+    # adds ``sigma_mounting_gain`` × the departure from nominal of the mounting states paired
+    # with it (shoulder flexion: the upper-arm IMU's about its lateral axis; abduction: about
+    # its forward axis; elbow flexion: both IMUs' about the lateral axis). A candidate with
+    # the exact turn (docs/benchmarks.md); 0: off.
+    sigma_mounting_gain: float = 0.0
+    camera_hold_s: float = 5.0
     init_sigma_deg: float = 5.0  # prior σ of each angle at the zero pose (contract §8 "Start")
     # streams
     forearm_tolerance_s: float = 0.006  # a forearm sample this close pairs with the upper one
@@ -192,6 +212,10 @@ class WearableParams:
             raise WearableParamsError(f"side must be 'right' or 'left', not {self.side!r}")
         if self.filter not in ("ekf", "ukf"):
             raise WearableParamsError(f"filter must be 'ekf' or 'ukf', not {self.filter!r}")
+        if self.mounting_turn not in ("first_order", "exact"):
+            raise WearableParamsError(
+                f"mounting_turn must be 'first_order' or 'exact', not {self.mounting_turn!r}"
+            )
         if self.model not in ("A", "B", "C", "I"):
             raise WearableParamsError(f"model must be A, B or C, not {self.model!r}")
         for name in ("upper_arm_length_m", "forearm_length_m"):

@@ -40,7 +40,8 @@ HAVE_FOREARM, HAVE_ELBOW, HAVE_WRIST = 1, 2, 4
 (M_HAVE_X, M_T_LAST, M_T_START, M_VERT, M_REST_N, M_REST_NF, M_GYRO_MAX, M_CHECKED) = range(8)
 (M_STICKY, M_NIS_SUM, M_NIS_LEN, M_NIS_POS, M_RESTARTED, M_STEPS) = range(8, 14)
 M_ACC_U, M_ACC_F = 14, 17  # (3,) each: sums of the specific force over the rest window
-M_SIZE = 20
+M_T_CAM = 20  # the last step with a camera position (−inf: none yet)
+M_SIZE = 21
 # ``counts``: rejections by reason
 COUNT_NAMES = (
     "gap_restart",
@@ -71,7 +72,10 @@ C_BACKWARDS, C_NONFINITE, C_RANGE = 9, 12, 15  # + the stream (kind)
 T_UP_U, T_UP_F = 10, 13  # (3,) each: "up" in each IMU's frame at the zero pose
 (T_TOL, T_MISSING, T_CAM_AGE, T_CAMERA, T_FIX_REACH, T_SIGMA_POS) = range(16, 22)
 T_MAX_GYRO, T_MAX_ACC, T_VERT_INIT = 22, 23, 24
-T_SIZE = 25
+# the σ from the mounting states without a camera (:func:`finish`): the gain, how long a camera
+# position counts (s), and (2, 5) the states paired with each angle (−1: none)
+T_MOUNT_GAIN, T_CAM_HOLD, T_MOUNT_IDX = 25, 26, 27
+T_SIZE = 37
 # :func:`widen`'s scalar settings, one (6,) array (:class:`.params.WearableParams`: the
 # pronation's vertical term, deg; the rotation's doubt threshold, deg, and fading, s; the
 # straight-elbow share and its fading, s; the hanging forearm's drift, deg/s)
@@ -83,7 +87,9 @@ K_UPPER, K_FORE, K_CAMERA = range(3)
 
 def new_state(nis_window: int) -> tuple[Any, Any, Any]:
     """``mon``, ``nis_buf``, ``counts`` of a tracker that has seen nothing."""
-    return np.zeros(M_SIZE), np.zeros(max(nis_window, 1)), np.zeros(len(COUNT_NAMES), np.intp)
+    mon = np.zeros(M_SIZE)
+    mon[M_T_CAM] = -math.inf
+    return mon, np.zeros(max(nis_window, 1)), np.zeros(len(COUNT_NAMES), np.intp)
 
 
 @jit
@@ -360,6 +366,14 @@ def finish(
     if t - mon[M_T_START] < tp[T_REST_S]:
         flags |= INITIALISING
     o = kernel.emit(x, P, ia, fa, math.radians(mon[M_VERT]))
+    if avail & HAVE_ELBOW:
+        mon[M_T_CAM] = t
+    if tp[T_MOUNT_GAIN] > 0.0 and t - mon[M_T_CAM] > tp[T_CAM_HOLD]:  # (params: no camera)
+        for j in range(5):
+            for r in range(2):
+                k = int(tp[T_MOUNT_IDX + 5 * r + j])
+                if k >= 0:
+                    o[5 + j] = math.hypot(o[5 + j], tp[T_MOUNT_GAIN] * math.degrees(x[k]))
     if tp[T_LEFT] != 0.0:  # back from the virtual right arm (params.mirror_vectors)
         o[11] = -o[11]
         o[14] = -o[14]

@@ -123,6 +123,9 @@ def initial_state(params: WearableParams) -> TrackerState:
     tp[steps.T_SIGMA_POS] = params.sigma_pos_m
     tp[steps.T_MAX_GYRO] = params.max_gyro_rads
     tp[steps.T_MAX_ACC] = params.max_acc_ms2
+    tp[steps.T_MOUNT_GAIN] = params.sigma_mounting_gain
+    tp[steps.T_CAM_HOLD] = params.camera_hold_s
+    tp[steps.T_MOUNT_IDX : steps.T_MOUNT_IDX + 10] = _mounting_pairs(model, zero).ravel()
     # the slots a step measures, by what was paired with it (steps.HAVE_* bits)
     bits = np.arange(8)
     have = model.measured(
@@ -146,6 +149,25 @@ def initial_state(params: WearableParams) -> TrackerState:
         ]
     )
     return state
+
+
+def _mounting_pairs(model: Model, zero: dh.Pose) -> NDArray[np.intp]:
+    """(2, 5) the mounting state turning each IMU about each angle's axis at the zero pose
+    (the upper arm's about shoulder flexion's and abduction's, both IMUs' about the elbow's;
+    −1: none): the state whose direction is nearest that axis, for any mounting."""
+    pairs = np.full((2, 5), -1, dtype=np.intp)
+    for r, (idx, slot, R_seg, R_xi, joints) in enumerate(
+        (
+            (model.i_mu, kernel.GYR_U, zero.R_SU, model.geo.R_UI, (0, 1, 3)),
+            (model.i_mf, kernel.GYR_F, zero.R_SF, model.geo.R_FI, (3,)),
+        )
+    ):
+        if not idx.size:
+            continue
+        dirs = R_seg @ R_xi @ model.mis_basis[slot][:, : idx.size]  # the states' axes in S
+        for j in joints:
+            pairs[r, j] = idx[int(np.argmax(np.abs(zero.axes[j] @ dirs)))]
+    return pairs
 
 
 Rows = dict[str, F64]
