@@ -26,7 +26,7 @@ import numpy as np
 
 from backend.live.wearable_run import SURE_STD_DEG  # the dashboard's "sure"
 from estimators.wearable import tracker
-from estimators.wearable.params import Mounting, WearableParams
+from estimators.wearable.params import CANDIDATE, Mounting, WearableParams
 from simulator import wearable as w
 from simulator import wearable_moves as moves
 from simulator.wearable_arm import Mount, imu_readings, joint_positions, rotations
@@ -80,14 +80,6 @@ PAPER_METHOD = {
     "pronation_drift_dps": 0.0,
     "vertical_init_deg": 0.0,
     "sigma_mounting_gain": 0.0,
-}
-# a candidate for the product (docs/benchmarks.md, "Per-angle confidence"): ``--candidate``
-# runs it in place of the product's defaults
-CANDIDATE = {
-    "mounting_turn": "exact",
-    "acc_bias": True,
-    "sigma_mounting_gain": 1.0,
-    "vertical_init_deg": 2.0,
 }
 PRODUCT: dict[str, Any] = {}  # what the product's rows run with (CANDIDATE with --candidate)
 

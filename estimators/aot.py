@@ -53,6 +53,14 @@ def missing(module: ModuleType | None) -> list[str]:
     return [k for k in kernels() if module is None or not hasattr(module, k)]
 
 
+def built() -> ModuleType | None:
+    """The built module in the package, None if there is none (or none for this Python)."""
+    try:
+        return importlib.import_module(jit.MODULE)
+    except ImportError:
+        return None
+
+
 def mode() -> Mode:
     """How this process runs the kernels: ``interpreted`` (``NUMBA_DISABLE_JIT=1``), ``jit``
     (numba's JIT: the module not built here, built from older sources, or ``REHAB_AOT=0``)
@@ -61,11 +69,7 @@ def mode() -> Mode:
         return "interpreted"
     if os.environ.get("REHAB_AOT") == "0":
         return "jit"
-    try:
-        built: ModuleType | None = importlib.import_module(jit.MODULE)
-    except ImportError:
-        built = None
-    return "jit" if missing(built) else "ahead-of-time"
+    return "jit" if missing(built()) else "ahead-of-time"
 
 
 def build(out_dir: Path) -> Path:
@@ -92,18 +96,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--check", action="store_true", help="only report what is missing")
     ap.add_argument("--out", type=Path, default=PACKAGE_DIR, help="directory of the module")
     args = ap.parse_args(argv)
-    try:
-        built: ModuleType | None = importlib.import_module(jit.MODULE)
-    except ImportError:
-        built = None
-    todo = missing(built)
+    module = built()
+    todo = missing(module)
     if args.check:
         for k in todo:
             print(f"not built (or stale): {k}")
         return 1 if todo else 0
-    if not todo and args.out.resolve() == PACKAGE_DIR and built is not None:
+    if not todo and args.out.resolve() == PACKAGE_DIR and module is not None:
         # touched, so that ./run's check (the module newer than the estimators) passes
-        os.utime(str(built.__file__))
+        os.utime(str(module.__file__))
         print(f"{jit.MODULE}: up to date ({len(kernels())} kernels)")
         return 0
     path = build(args.out)

@@ -241,10 +241,12 @@ class Model:
         var[self.i_th] = (p.init_sigma_deg * DEG) ** 2
         var[self.i_bu] = (p.gyro_bias_sigma_dps * DEG) ** 2
         var[self.i_bf] = (p.gyro_bias_sigma_dps * DEG) ** 2
-        s0 = p.body_acc_init_sigma_ms2
-        s0 = 0.1 * p.body_acc_sigma_ms2 if s0 is None else s0
-        if p.model == "A":
+        if p.model == "A":  # the accelerometer biases (acc_bias)
             s0 = p.acc_bias_sigma_ms2
+        elif p.body_acc_init_sigma_ms2 is None:  # model B's body accelerations
+            s0 = 0.1 * p.body_acc_sigma_ms2
+        else:
+            s0 = p.body_acc_init_sigma_ms2
         var[self.i_au] = s0**2
         var[self.i_af] = s0**2
         var[self.i_mu] = (p.mounting_sigma_deg * DEG) ** 2

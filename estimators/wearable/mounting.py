@@ -75,8 +75,8 @@ def _turned(
     """Slot ``s``'s rows ``h``, ``H`` (from ``row``) turned by ``δ = d``: to first order
     ``h += v × δ``, ``H += (∂v/∂x) × δ``, ``∂h/∂η_k = v × b_k`` (the product's), or exactly
     ``h = Exp(−δ) v``, ``∂h/∂x = Exp(−δ) ∂v/∂x``, ``∂h/∂η_k = Exp(−δ) (v × J_r(−δ) b_k)``."""
-    R, J = _turn(d) if exact else (np.eye(3), np.eye(3))  # first order: Exp's part is × δ
     if exact:
+        R, J = _turn(d)
         for c in range(3):
             h[row + c] += R[c, 0] * v[0] + R[c, 1] * v[1] + R[c, 2] * v[2] - v[c]
     else:
@@ -94,18 +94,27 @@ def _turned(
             H[row, k] += j1 * d[2] - j2 * d[1]
             H[row + 1, k] += j2 * d[0] - j0 * d[2]
             H[row + 2, k] += j0 * d[1] - j1 * d[0]
-    for k in range(3):  # (with J = R = 1 the first order's own numbers, bit for bit)
-        if mis[s, k] < 0:
+    for k in range(3):
+        m = mis[s, k]
+        if m < 0:
             continue
-        b = np.zeros(3)
-        for c in range(3):
-            for e in range(3):
-                b[c] += J[c, e] * basis[s, e, k]
-        c0 = v[1] * b[2] - v[2] * b[1]
-        c1 = v[2] * b[0] - v[0] * b[2]
-        c2 = v[0] * b[1] - v[1] * b[0]
-        for c in range(3):
-            H[row + c, mis[s, k]] += R[c, 0] * c0 + R[c, 1] * c1 + R[c, 2] * c2
+        b0, b1, b2 = basis[s, 0, k], basis[s, 1, k], basis[s, 2, k]
+        if exact:  # J_r(−δ) b_k
+            b0, b1, b2 = (
+                J[0, 0] * b0 + J[0, 1] * b1 + J[0, 2] * b2,
+                J[1, 0] * b0 + J[1, 1] * b1 + J[1, 2] * b2,
+                J[2, 0] * b0 + J[2, 1] * b1 + J[2, 2] * b2,
+            )
+        c0, c1, c2 = v[1] * b2 - v[2] * b1, v[2] * b0 - v[0] * b2, v[0] * b1 - v[1] * b0
+        if exact:  # Exp(−δ) (v × J_r b_k)
+            c0, c1, c2 = (
+                R[0, 0] * c0 + R[0, 1] * c1 + R[0, 2] * c2,
+                R[1, 0] * c0 + R[1, 1] * c1 + R[1, 2] * c2,
+                R[2, 0] * c0 + R[2, 1] * c1 + R[2, 2] * c2,
+            )
+        H[row, m] += c0
+        H[row + 1, m] += c1
+        H[row + 2, m] += c2
 
 
 @jit

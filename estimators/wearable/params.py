@@ -40,6 +40,17 @@ DEFAULT_QUAT = (0.5, 0.5, 0.5, -0.5)
 MIRROR = np.diag([1.0, -1.0, 1.0])  # S's x–z plane: a left arm is the right one mirrored
 
 
+# A candidate for the product's defaults, selectable, not the default yet (docs/benchmarks.md,
+# "Per-angle confidence"): the mounting states' exact turn, accelerometer-bias states, the σ
+# from the mounting states without a camera, and the drift bound's smaller start.
+CANDIDATE: dict[str, Any] = {
+    "mounting_turn": "exact",
+    "acc_bias": True,
+    "sigma_mounting_gain": 1.0,
+    "vertical_init_deg": 2.0,
+}
+
+
 class WearableParamsError(ValueError):
     """Parameters that cannot be used (unknown key, wrong type, out of range)."""
 

@@ -30,10 +30,7 @@ RNG = np.random.default_rng(3)
 
 @pytest.fixture(scope="module")
 def built(tmp_path_factory: pytest.TempPathFactory) -> ModuleType:
-    try:
-        mod: ModuleType | None = importlib.import_module(jit.MODULE)
-    except ImportError:
-        mod = None
+    mod = aot.built()
     if mod is not None and not aot.missing(mod):
         return mod
     path = aot.build(tmp_path_factory.mktemp("aot"))

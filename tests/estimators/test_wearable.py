@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from estimators.wearable import dh, steps, tracker
 from estimators.wearable.model import Measurement, Model
-from estimators.wearable.params import WearableParams, WearableParamsError
+from estimators.wearable.params import CANDIDATE, WearableParams, WearableParamsError
 from simulator.wearable_arm import Mount, imu_readings, joint_positions
 
 DEFAULT_R = Rotation.from_quat([0.5, 0.5, -0.5, 0.5]).as_matrix()  # scipy: [x, y, z, w]
@@ -552,16 +552,6 @@ def test_camera_less_turn_about_the_vertical_is_not_shown_sure():
     for a in ("shoulder_abduction", "shoulder_rotation"):
         assert product[f"{a}_wrong"] <= 0.02, product
         assert bare[f"{a}_wrong"] > 0.1, bare  # the check can fail
-
-
-# the candidate of docs/benchmarks.md: the exact mounting turn, accelerometer-bias states,
-# the σ from the mounting states without a camera, and the drift bound's smaller start
-CANDIDATE = {
-    "mounting_turn": "exact",
-    "acc_bias": True,
-    "sigma_mounting_gain": 1.0,
-    "vertical_init_deg": 2.0,
-}
 
 
 def test_candidate_keeps_the_camera_less_split_of_an_angle_and_its_mounting_grey():
