@@ -69,6 +69,11 @@ class CameraErrors:
     dropouts_per_min: float = 3.0
     dropout_s: tuple[float, float] = (0.5, 2.0)
 
+    @classmethod
+    def paper(cls) -> CameraErrors:
+        """The paper's camera: white noise of σp = 1 cm (table 5), nothing else."""
+        return cls(offset_m=0.0, lag_s=0.0, dropouts_per_min=0.0)
+
 
 @dataclass(frozen=True)
 class WearableSimConfig:

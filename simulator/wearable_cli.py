@@ -42,6 +42,7 @@ def run(args: argparse.Namespace) -> int:
             side=args.side,
             device=args.device if args.device != "sim01" else "wear01",
             imu=w.ImuErrors.paper() if args.ideal else w.ImuErrors(),
+            cam=w.CameraErrors.paper() if args.ideal else w.CameraErrors(),
         )
         start = time.perf_counter()
         sim = w.simulate(cfg)

@@ -4,13 +4,13 @@ from its nominal mounting, estimated with the joint angles.
 A strap puts an IMU a few degrees off its nominal orientation ``R_UI`` (``R_FI``). With the true
 mounting ``R_UI·Exp(δ)`` (``δ`` (3,) rad, a rotation vector in the IMU frame) every reading of
 that IMU is the nominal prediction ``v`` (eqs. 12–15) turned by ``Exp(−δ)``. The product
-takes it to first order (``mounting_turn="first_order"``),
+turns it exactly (``mounting_turn="exact"``),
 
-    h = v + v × δ,   ∂h/∂δ = [v]×,   ∂h/∂x = (1 + [·]×δ) ∂v/∂x,
+    h = Exp(−δ)·v,   ∂h/∂δ = Exp(−δ) [v]× J_r(−δ),   ∂h/∂x = Exp(−δ) ∂v/∂x,
 
-or exactly (``"exact"``, a candidate),
+or, as until 2026-12-05, to first order (``"first_order"``),
 
-    h = Exp(−δ)·v,   ∂h/∂δ = Exp(−δ) [v]× J_r(−δ),   ∂h/∂x = Exp(−δ) ∂v/∂x
+    h = v + v × δ,   ∂h/∂δ = [v]×,   ∂h/∂x = (1 + [·]×δ) ∂v/∂x
 
 (``J_r`` SO(3)'s right Jacobian), applied to the gyro and the accelerometer rows of the same
 IMU (one rigid body) before its additive states (gyro bias, accelerometer bias) are added.

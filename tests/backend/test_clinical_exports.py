@@ -420,7 +420,9 @@ def test_fhir_uses_loinc_snomed_and_ucum_where_they_exist(analysed: Analysed) ->
     q = duration.valueQuantity
     assert (q.system, q.code) == ("http://unitsofmeasure.org", "min")
     cycles = analysed.report["cycles"]
-    assert float(q.value) == pytest.approx(sum(c["end"] - c["start"] for c in cycles) / 60)
+    assert float(q.value) == pytest.approx(
+        sum(c["end"] - c["start"] for c in cycles) / 60, abs=5e-7
+    )  # 6 decimals
     cats = {c.coding[0].code for c in duration.category}
     assert cats == {"activity", "PhysicalActivity"}  # HL7's, and the Physical Activity IG's
     sites = {
@@ -529,7 +531,8 @@ def test_wearable_pdf_and_fhir(wearable: Analysed, tmp_path: Path) -> None:
         rep["anatomical_rom"]["session"]["elbow_flexion_deg"]["range"]
     )
     minutes = sum(m["end"] - m["start"] for m in rep["movements"]) / 60
-    assert float(obs["exercise_duration"].valueQuantity.value) == pytest.approx(minutes)
+    # FHIR quantities carry 6 decimals (fhir._quantity)
+    assert float(obs["exercise_duration"].valueQuantity.value) == pytest.approx(minutes, abs=5e-7)
 
 
 def test_wearable_mcap_holds_joints_and_movements(wearable: Analysed, tmp_path: Path) -> None:

@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from estimators.wearable import dh, steps, tracker
 from estimators.wearable.model import Measurement, Model
-from estimators.wearable.params import CANDIDATE, WearableParams, WearableParamsError
+from estimators.wearable.params import WearableParams, WearableParamsError
 from simulator.wearable_arm import Mount, imu_readings, joint_positions
 
 DEFAULT_R = Rotation.from_quat([0.5, 0.5, -0.5, 0.5]).as_matrix()  # scipy: [x, y, z, w]
@@ -157,7 +157,7 @@ def test_predicted_readings_match_differentiated_motion():
 def test_jacobian_matches_finite_differences(model, mounting):
     turn = mounting or "first_order"
     p = WearableParams(model=model, mounting_states=mounting is not None, mounting_turn=turn)
-    p = replace(p, acc_bias=model == "A")  # the candidate's accelerometer biases (A only)
+    p = replace(p, acc_bias=model == "A")  # accelerometer biases are model A's only
     mdl = Model.build(p)
     rng = np.random.default_rng(3)
     x = rng.normal(0, 0.8, mdl.n)
@@ -174,7 +174,7 @@ def test_jacobian_matches_finite_differences(model, mounting):
 
 
 def test_process_model_eq3_eq4():
-    p = WearableParams(gyro_bias=False, mounting_states=False)
+    p = WearableParams(gyro_bias=False, mounting_states=False, acc_bias=False)
     mdl = Model.build(p)
     ts = 0.01
     f, q = mdl.transition(ts)
@@ -244,7 +244,7 @@ def test_mounting_states_learn_a_misalignment_from_the_camera():
     err = {}
     for label, p in (
         ("product", WearableParams()),
-        ("paper", WearableParams(gyro_bias=False, mounting_states=False)),
+        ("paper", WearableParams(gyro_bias=False, acc_bias=False, mounting_states=False)),
     ):
         rows, st = tracker.run(p, msgs)
         err[label] = [
@@ -457,7 +457,12 @@ def test_confidence_is_honest_about_the_vertical_without_camera():
     t, msgs = _session(fn, dur=10.0)
     # the filter's own σ (no systematic floor: compares what the sensors tell)
     rows, _ = tracker.run(
-        WearableParams(sigma_floor_deg=(0.0,) * 5, sigma_share=(0.0,) * 5, sigma_doubt=(0.0,) * 5),
+        WearableParams(
+            sigma_floor_deg=(0.0,) * 5,
+            sigma_share=(0.0,) * 5,
+            sigma_doubt=(0.0,) * 5,
+            sigma_mounting_gain=0.0,
+        ),
         msgs,
     )
     v = rows["vertical_std_deg"]
@@ -543,32 +548,34 @@ def test_reported_sigma_covers_the_error(move, camera, least):
 
 
 def test_camera_less_turn_about_the_vertical_is_not_shown_sure():
-    """Without a camera the whole arm's turn about the vertical can be off by 10–18° from the
-    first movement after the rest (this wheel session, seed 9 of the sizing seeds: abduction
-    and rotation shown sure but off by more than 7.5° on ~20 % of the rows with the drift
-    bound's start at ``init_sigma_deg``): ``vertical_init_deg`` keeps them grey."""
-    product = _coverage("shoulder_wheel", False, seed=9, dur=60.0)
-    bare = _coverage("shoulder_wheel", False, seed=9, dur=60.0, vertical_init_deg=0.0)
+    """Without a camera the whole arm's turn about the vertical can be off by more than the
+    drift bound from the first movement after the rest (this reaching session, seed 9 of the
+    sizing seeds: the shoulder's rotation shown sure but off by more than 7.5° on 2.9 % of
+    the rows with the bound's start at ``init_sigma_deg``): ``vertical_init_deg`` keeps it
+    grey (the first-order turn needed 12°, on the wheel's seed 9)."""
+    product = _coverage("reaching", False, seed=9, dur=60.0)
+    bare = _coverage("reaching", False, seed=9, dur=60.0, vertical_init_deg=0.0)
     for a in ("shoulder_abduction", "shoulder_rotation"):
         assert product[f"{a}_wrong"] <= 0.02, product
-        assert bare[f"{a}_wrong"] > 0.1, bare  # the check can fail
+    assert bare["shoulder_rotation_wrong"] > 0.02, bare  # the check can fail
 
 
-def test_candidate_keeps_the_camera_less_split_of_an_angle_and_its_mounting_grey():
+def test_camera_less_split_of_an_angle_and_its_mounting_is_not_shown_sure():
     """Without a camera the elbow and the forearm IMU's turn about the flexion axis are one
     quantity to gravity and the gyros; with the exact turn their split slides in the ROM
     moves (seed 1 of the sizing seeds: the elbow off by more than 7.5° while P says ~0.5°):
     the σ from the mounting states (``sigma_mounting_gain``) keeps it grey."""
-    cand = _coverage("rom", False, seed=1, dur=60.0, **CANDIDATE)
-    bare = _coverage("rom", False, seed=1, dur=60.0, **{**CANDIDATE, "sigma_mounting_gain": 0.0})
-    assert cand["elbow_flexion_wrong"] <= 0.02, cand
+    product = _coverage("rom", False, seed=1, dur=60.0)
+    bare = _coverage("rom", False, seed=1, dur=60.0, sigma_mounting_gain=0.0)
+    assert product["elbow_flexion_wrong"] <= 0.02, product
     assert bare["elbow_flexion_wrong"] > 0.05, bare  # the check can fail
 
 
 def test_exact_turn_keeps_the_start_free_of_a_long_accelerometer():
     """Seed 9's accelerometers read gravity ~2.5 % long (scale factors): the first-order turn
     explains it by the forearm's mounting state at ~14° and the elbow turns the other way at
-    the start's rest, camera on; the exact turn keeps a rotation a rotation."""
+    the start's rest, camera on; the exact turn keeps a rotation a rotation (both without the
+    accelerometer-bias states, which take up part of it too)."""
     from simulator import wearable as w
 
     sim = w.simulate(w.WearableSimConfig(move="rom", duration_s=60.0, seed=9, camera=True))
@@ -576,7 +583,8 @@ def test_exact_turn_keeps_the_start_free_of_a_long_accelerometer():
     err = {}
     for turn in ("first_order", "exact"):
         rows, _ = tracker.run(
-            WearableParams.from_json(sim.params, mounting_turn=turn), w.tracker_inputs(sim.messages)
+            WearableParams.from_json(sim.params, mounting_turn=turn, acc_bias=False),
+            w.tracker_inputs(sim.messages),
         )
         err[turn] = np.max(np.abs(rows["elbow_flexion_deg"][rest] - sim.theta_deg[rest, 3]))
     assert err["first_order"] > 10.0, err  # the check can fail
