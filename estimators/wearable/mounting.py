@@ -12,8 +12,9 @@ or, as until 2026-12-05, to first order (``"first_order"``),
 
     h = v + v × δ,   ∂h/∂δ = [v]×,   ∂h/∂x = (1 + [·]×δ) ∂v/∂x
 
-(``J_r`` SO(3)'s right Jacobian), applied to the gyro and the accelerometer rows of the same
-IMU (one rigid body) before its additive states (gyro bias, accelerometer bias) are added.
+(``J_r``: SO(3)'s right Jacobian), either applied to the gyro and the accelerometer rows of
+the same IMU (one rigid body) before its additive states (gyro bias, accelerometer bias) are
+added.
 The first order lengthens a reading by about |δ⊥v|²/2: an accelerometer's 2.5 % scale error
 pulls the forearm's δ to 14° at the start's rest and the elbow the other way, while the same
 lengthening holds δ near nominal where nothing else tells it from an angle

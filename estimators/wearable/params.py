@@ -130,9 +130,9 @@ class WearableParams:
     mounting_states: bool = True
     mounting_sigma_deg: float = 5.0  # prior σ of each component (a strap's few degrees)
     mounting_walk_deg_per_sqrt_s: float = 0.01  # slow change (skin and strap creep)
-    # how a mounting state turns its IMU's readings (:mod:`.mounting`): "first_order"
-    # ("exact", Exp(−δ)·v) or to first order ("first_order", v + v × δ: a reading |δ⊥v|²/2
-    # longer, the product's until 2026-12-05: docs/benchmarks.md)
+    # how a mounting state turns its IMU's readings (:mod:`.mounting`): exactly ("exact",
+    # Exp(−δ)·v) or to first order ("first_order", v + v × δ: a reading |δ⊥v|²/2 longer, the
+    # product's until 2026-12-05: docs/benchmarks.md)
     mounting_turn: Literal["first_order", "exact"] = "exact"
     # model A: accelerometer-bias random constants per IMU, added to its rows like the gyro's
     # (model B's body-acceleration states take those rows' slots; off = the paper's)
