@@ -32,6 +32,7 @@ from protocol import keys, recording, wire
 from protocol.zenoh_config import make_config
 
 log = logging.getLogger(__name__)
+READY_TIMEOUT_S = 60.0  # a DeviceThread waits this long for its ready() at most
 
 
 @dataclass(frozen=True, slots=True)
@@ -244,7 +245,8 @@ def publish(
 
 class DeviceThread(threading.Thread):
     """A simulated device publishing ``outgoing`` from a background thread, as a real one
-    would: ``head_s`` seconds in real time (so the service knows the device), then, if
+    would: once ``ready()`` (if given: e.g. a worker holds the device, polled from this
+    thread), ``head_s`` seconds in real time (so the service knows the device), then, if
     ``gated``, a wait for :meth:`go` (a session has started), then everything up to
     ``fast_until_s`` (seconds after the first message) at ``fast`` times real time (the
     heading calibration, shortened) and the rest in real time until the end or :meth:`stop`.
@@ -262,9 +264,11 @@ class DeviceThread(threading.Thread):
         fast_until_s: float = 0.0,
         fast: float = 1.0,
         gated: bool = False,
+        ready: Callable[[], bool] | None = None,
         prefix: str = keys.DEFAULT_PREFIX,
     ) -> None:
         super().__init__(name=f"sim-{name}", daemon=True)
+        self.ready = ready
         self.endpoint, self.outgoing, self.prefix = endpoint, list(outgoing), prefix
         self.head_s, self.fast_until_s, self.fast = head_s, fast_until_s, fast
         self._go = threading.Event()
@@ -290,6 +294,13 @@ class DeviceThread(threading.Thread):
                 pub.wait_for_subscribers(10.0)
                 if not self.outgoing:
                     return
+                if self.ready is not None:
+                    deadline = time.monotonic() + READY_TIMEOUT_S
+                    while not self.ready():
+                        if time.monotonic() > deadline:
+                            raise TimeoutError(f"not ready after {READY_TIMEOUT_S:.0f} s")
+                        if self.stop_event.wait(0.05):
+                            return
                 at = [m.at for m in self.outgoing]  # never decreasing (prepare)
                 n_head = bisect.bisect_left(at, at[0] + self.head_s)
                 n_fast = max(n_head, bisect.bisect_left(at, at[0] + self.fast_until_s))

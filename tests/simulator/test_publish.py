@@ -85,3 +85,23 @@ def test_a_failure_in_the_thread_is_kept_for_its_owner() -> None:
     dev.join(30)
     assert not dev.is_alive()
     assert isinstance(dev.error, Exception), dev.error
+
+
+def test_nothing_is_sent_before_ready(listener: tuple[str, queue.Queue[tuple[float, str]]]) -> None:
+    endpoint, got = listener
+    outgoing = prepare(simulate(SimConfig(seed=4, duration_s=12.0, device="pub03")).messages)
+    polls: list[float] = []
+
+    def ready() -> bool:
+        polls.append(time.monotonic())
+        return polls[-1] - polls[0] > 0.5
+
+    dev = DeviceThread(endpoint, outgoing, name="pub03", head_s=0.2, gated=True, ready=ready)
+    dev.start()
+    try:
+        first = got.get(timeout=10.0)
+        assert len(polls) > 2 and first[0] >= polls[-1]  # after the poll that said ready
+        assert first[1] == outgoing[0].key
+    finally:
+        dev.stop()
+    assert dev.error is None

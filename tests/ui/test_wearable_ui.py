@@ -6,11 +6,14 @@ test of maximal shoulder flexion and finds its peak in the session's report."""
 from __future__ import annotations
 
 import json
+import time
 from collections.abc import Iterator
 
 import pytest
 from playwright.sync_api import Browser, BrowserContext, Page, expect
 
+from backend.live import lease
+from backend.settings import Settings
 from simulator import wearable as sw
 from simulator.publish import DeviceThread, prepare
 from simulator.wearable_moves import rom_duration
@@ -36,16 +39,27 @@ def device(service: Service) -> Iterator[DeviceThread]:
     sim = sw.simulate(
         sw.WearableSimConfig(move="rom", duration_s=rom_duration(), seed=4, device=DEVICE)
     )
+    # A worker makes a preview wearable on the first forearm or camera message it gets: the
+    # short head (the rest is the session's) waits for a worker to hold the device, whose
+    # subscription comes with its lease (the lease may come after the head: seen in CI).
+    engine = lease.sync_engine(Settings(data_dir=service.data_dir).db_url)
+
+    def held() -> bool:
+        with engine.connect() as conn:
+            row = lease.table_sync(conn).get(DEVICE)
+        return row is not None and row[2] > time.time() + 0.2
+
     # the start at rest (§8: 2 s, the session's) fast, then the movements in real time
     thread = DeviceThread(
         service.zenoh, prepare(sim.messages), name=DEVICE, head_s=0.3, gated=True,
-        fast_until_s=2.0, fast=4.0,
+        fast_until_s=2.0, fast=4.0, ready=held,
     )  # fmt: skip
     thread.start()
     try:
         yield thread
     finally:
         thread.stop()
+        engine.dispose()
 
 
 def test_wearable_session_page(
@@ -64,7 +78,10 @@ def test_wearable_session_page(
     page.goto(f"/devices/{DEVICE}")
     expect(page.get_by_role("heading", name=DEVICE)).to_be_visible()
     # the preview knows a wearable device by its streams: the joint angles' page
-    expect(page.get_by_role("heading", name="Joint angles")).to_be_visible(timeout=30_000)
+    try:
+        expect(page.get_by_role("heading", name="Joint angles")).to_be_visible(timeout=30_000)
+    except AssertionError as exc:
+        raise AssertionError(f"device thread: sent {device.sent}, error {device.error!r}") from exc
     page.get_by_label("Patient").select_option(label=f"{PATIENT} · right arm · tolerance 10 cm")
     page.get_by_role("button", name="Start session").click()
     expect(page.get_by_role("button", name="Stop session")).to_be_visible()
