@@ -88,18 +88,13 @@ def test_wearable_session_page(
     sessions = api.get("/api/sessions", params={"device": DEVICE}).json()
     session = next(s for s in sessions if s["status"] == "active")
     assert session["params"]["mode"] == "wearable" and session["params"]["side"] == "right"
-    device.go()
-    # the rest window: the figures are there, the plots fill
-    figures = page.get_by_test_id("joint-figures")
-    expect(figures.locator("[data-angle=shoulder_flexion_deg]")).to_contain_text(
-        "°", timeout=20_000
-    )
-    for angle in ("shoulder_flexion_deg", "elbow_flexion_deg", "forearm_pronation_deg"):
-        expect(page.locator(f"[data-plot={angle}] canvas")).to_have_count(1)
-    # ROM test: maximal flexion (the movement reaches 150° about 4.5 s into the session)
+    # ROM test: maximal flexion, started before the movements flow (they reach 150° about
+    # 3 s after go(): the page's checks took longer than that in a CI run)
     page.get_by_label("Movement").select_option(value="shoulder_flexion")
     page.get_by_role("button", name="Start test").click()
     expect(page.get_by_role("button", name="Stop test: Maximal shoulder flexion")).to_be_visible()
+    device.go()
+    # the figure follows the flexion (watched from now on: its peak lasts about a second)
     try:
         page.wait_for_function(
             "() => { const e = document.querySelector("
@@ -110,6 +105,10 @@ def test_wearable_session_page(
     except Exception:
         shot(page, "wearable-session-failed", full_page=True)
         raise
+    figures = page.get_by_test_id("joint-figures")
+    expect(figures.locator("[data-angle=shoulder_flexion_deg]")).to_contain_text("°")
+    for angle in ("shoulder_flexion_deg", "elbow_flexion_deg", "forearm_pronation_deg"):
+        expect(page.locator(f"[data-plot={angle}] canvas")).to_have_count(1)
     page.wait_for_timeout(2500)  # and back down
     shot(page, "wearable-session")
     page.get_by_role("button", name="Stop test: Maximal shoulder flexion").click()
