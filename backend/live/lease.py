@@ -126,6 +126,16 @@ def table_sync(conn: Connection) -> dict[str, tuple[str, int, float]]:
     return {d: (h, int(e), float(x)) for d, h, e, x in conn.execute(_ALL).all()}
 
 
+def _unexpired(rows: dict[str, tuple[str, int, float]], now: float | None) -> list[str]:
+    now = time.time() if now is None else now
+    return [d for d, (_, _, x) in rows.items() if x > now]
+
+
+def held_devices_sync(conn: Connection, now: float | None = None) -> list[str]:
+    """:func:`held_devices` on a blocking connection."""
+    return _unexpired(table_sync(conn), now)
+
+
 def sync_engine(async_url: str) -> Engine:
     """A blocking engine on the same database (sqlite+aiosqlite → sqlite; psycopg is both)."""
     url = make_url(async_url)
@@ -164,8 +174,7 @@ async def table(db: AsyncSession) -> dict[str, tuple[str, int, float]]:
 
 async def held_devices(db: AsyncSession, now: float | None = None) -> list[str]:
     """Devices whose lease has not expired: a worker is running them."""
-    now = time.time() if now is None else now
-    return [d for d, (_, _, x) in (await table(db)).items() if x > now]
+    return _unexpired(await table(db), now)
 
 
 def rank(device: str, me: str, workers: Sequence[str]) -> int:

@@ -6,7 +6,6 @@ test of maximal shoulder flexion and finds its peak in the session's report."""
 from __future__ import annotations
 
 import json
-import time
 from collections.abc import Iterator
 
 import pytest
@@ -46,8 +45,7 @@ def device(service: Service) -> Iterator[DeviceThread]:
 
     def held() -> bool:
         with engine.connect() as conn:
-            row = lease.table_sync(conn).get(DEVICE)
-        return row is not None and row[2] > time.time() + 0.2
+            return DEVICE in lease.held_devices_sync(conn)
 
     # the start at rest (§8: 2 s, the session's) fast, then the movements in real time
     thread = DeviceThread(
