@@ -75,8 +75,9 @@ PAPER_T9 = {
 # the product's additions off (its states, and the reported σ's systematic part: P alone)
 PAPER_METHOD = {
     "gyro_bias": False,
-    "mounting_states": False,
+    "mounting_states": False,  # and with them the soft-tissue state
     "acc_bias": False,
+    "camera_offset_sigma_m": 0.0,
     "sigma_floor_deg": (0.0,) * 5,
     "sigma_share": (0.0,) * 5,
     "sigma_doubt": (0.0,) * 5,

@@ -4,7 +4,10 @@ State (column vector, radians): the kinematic block ``[θ̈_J, θ̇_J, θ_J]`` o
 joints J (eq. 1; order 2, model A), ``[θ̇_J, θ_J]`` (order 1, models B and C) or ``[θ_J]``
 (order 0, the inclinometer model "I" of §3.1), then optionally the gyro biases of the upper-arm
 and forearm IMUs (rad/s, 3 each; the product's addition, random constants with a slow walk),
-then for model B the body accelerations of each IMU in its own frame (m/s², 3 each, GM-1).
+then for model B the body accelerations of each IMU in its own frame (m/s², 3 each, GM-1)
+or for model A the accelerometer biases, then the product's mounting states (rad, 3 + 2), the
+upper arm's soft-tissue gain (1) and last the camera's joint-centre offsets (m, elbow and wrist
+in S, 3 each) (:mod:`.mounting`).
 
 ``F`` is eq. 3 (and its order-1/0 analogues), ``Q`` eq. 4 with the noise on the top derivative
 only. Measurements (eq. 16) are stacked per available sensor: upper-arm gyro and accelerometer,
@@ -70,11 +73,16 @@ class Model:
     packed: tuple[I64, F64]  # all of the above for kernel.ekf_step_packed / kernel.emit
     i_mu: I64  # mounting-misalignment states (.mounting)
     i_mf: I64
-    mis_idx: I64  # (6, 4) δ states of each slot's IMU, −1: none; then 1: the exact turn
+    mis_idx: I64  # (6, 5) δ states of each slot's IMU, −1: none; 1: the exact turn; c's state
     mis_basis: F64  # (6, 3, 3) their directions in the IMU frame (.mounting)
+    i_cam: I64  # the camera's joint-centre offsets (elbow xyz, wrist xyz in S), added to its rows
+    i_st: I64  # the upper-arm IMU's soft-tissue gain c: it turns with (1 + c)·θ2 (.mounting)
 
     @classmethod
-    def build(cls, p: WearableParams) -> Model:
+    def build(cls, p: WearableParams, camera_offsets: bool = True) -> Model:
+        """The model of ``p``; ``camera_offsets=False`` leaves out the camera's offset states
+        (the last six), which the tracker adds with the first camera message
+        (:func:`.tracker.add_camera_offsets`)."""
         order = ORDER[p.model]
         joints = p.estimated
         nj = len(joints)
@@ -99,7 +107,11 @@ class Model:
         i_af = take(3 if acc and use_f else 0)
         i_mu = take(3 if p.mounting_states else 0)
         i_mf = take(2 if p.mounting_states and use_f else 0)
-        mis_idx = np.full((6, 4), -1, dtype=np.intp)
+        i_st = take(1 if p.soft_tissue_sigma > 0 and p.mounting_states else 0)
+        i_cam = take(6 if camera_offsets and p.camera_offset_sigma_m > 0 and p.camera else 0)
+        mis_idx = np.full((6, 5), -1, dtype=np.intp)
+        if i_st.size:
+            mis_idx[kernel.GYR_U, 4] = mis_idx[kernel.ACC_U, 4] = i_st[0]
         basis = np.zeros((6, 3, 3))
         for slots, idx in (
             ((kernel.GYR_U, kernel.ACC_U), i_mu),
@@ -130,7 +142,12 @@ class Model:
                     theta_idx[row, j] = idx[c]
         bias_idx = np.full((6, 3), -1, dtype=np.intp)
         body_idx = np.full((6, 3), -1, dtype=np.intp)
-        for slot, idx in ((kernel.GYR_U, i_bu), (kernel.GYR_F, i_bf)):
+        for slot, idx in (
+            (kernel.GYR_U, i_bu),
+            (kernel.GYR_F, i_bf),
+            (kernel.ELBOW, i_cam[:3]),
+            (kernel.WRIST, i_cam[3:]),
+        ):
             if idx.size:
                 bias_idx[slot] = idx
         for slot, idx in ((kernel.ACC_U, i_au), (kernel.ACC_F, i_af)):
@@ -163,7 +180,7 @@ class Model:
             np.ascontiguousarray(geo.R_FI, dtype=f),
         )
         src_a, dst_a = np.array(src, dtype=np.intp), np.array(dst, dtype=np.intp)
-        packed = kernel.pack(
+        ia, fa = kernel.pack(
             order,
             k,
             p.model == "A",
@@ -179,6 +196,8 @@ class Model:
             r_slot,
             q_rate,
         )
+        # fa's tail (after q_rate): the elbow flexion beyond which c learns (.mounting)
+        packed = (ia, np.append(fa, p.soft_tissue_min_elbow_deg * DEG))
         return cls(
             p,
             geo,
@@ -207,6 +226,8 @@ class Model:
             i_mf,
             mis_idx,
             basis,
+            i_cam,
+            i_st,
         )
 
     # ------------------------------------------------------------------ process (eqs. 3, 4)
@@ -251,6 +272,8 @@ class Model:
         var[self.i_af] = s0**2
         var[self.i_mu] = (p.mounting_sigma_deg * DEG) ** 2
         var[self.i_mf] = (p.mounting_sigma_deg * DEG) ** 2
+        var[self.i_cam] = p.camera_offset_sigma_m**2
+        var[self.i_st] = p.soft_tissue_sigma**2
         return x, np.diag(var)
 
     def full_theta(self, x: F64) -> tuple[F64, F64, F64]:

@@ -2,10 +2,12 @@
 
 Noise defaults are the paper's table 5: σ_θ̈² = 1 (°/s²)² per 1 ms step, σ_ω² = 0.1 (°/s)²,
 σ_a² = 0.01 (m/s²)², σ_p² = 1e-4 m². The paper's model is ``model="A"`` with
-``gyro_bias=False, acc_bias=False, mounting_states=False``; the product's default adds
-gyro-bias states (see :mod:`.model`), accelerometer-bias states (model A) and
-mounting-misalignment states turning the readings exactly (:mod:`.mounting`);
-:data:`FIRST_ORDER` selects the earlier first-order turn.
+``gyro_bias=False, acc_bias=False, mounting_states=False, camera_offset_sigma_m=0``; the
+product's default adds
+gyro-bias states (see :mod:`.model`), accelerometer-bias states (model A),
+mounting-misalignment states turning the readings exactly, the upper arm's soft tissue and the
+camera's joint-centre offsets (:mod:`.mounting`); :data:`FIRST_ORDER` selects the product as it
+was before the last three (the first-order turn).
 """
 
 from __future__ import annotations
@@ -45,12 +47,15 @@ MIRROR = np.diag([1.0, -1.0, 1.0])  # S's x–z plane: a left arm is the right o
 # confidence"): the mounting states' first-order turn, which lengthens a reading and lets an
 # accelerometer's scale error tilt the arm (shown sure while 10° off on whole simulated
 # trials), no accelerometer biases, no σ from the mounting states, and the drift bound's
-# larger start that turn needed.
+# larger start that turn needed; nor the soft-tissue and camera-offset states (added
+# 2026-12-05 too).
 FIRST_ORDER: dict[str, Any] = {
     "mounting_turn": "first_order",
     "acc_bias": False,
     "sigma_mounting_gain": 0.0,
     "vertical_init_deg": 12.0,
+    "soft_tissue_sigma": 0.0,
+    "camera_offset_sigma_m": 0.0,
 }
 
 
@@ -139,6 +144,21 @@ class WearableParams:
     acc_bias: bool = True
     acc_bias_sigma_ms2: float = 0.1  # prior σ of each component (a MEMS part's few 10 mg)
     acc_bias_walk_ms2_per_sqrt_s: float = 0.001
+    # product: the upper-arm IMU's soft tissue as a gain ``c`` of the shoulder rotation (the
+    # strap turns with (1 + c)·θ2: skin sliding over the humerus), a random constant of prior
+    # σ ``soft_tissue_sigma`` (0: off = the paper's; needs ``mounting_states``). Only the
+    # forearm IMU across a bent elbow tells θ2 from c·θ2, so ``c`` learns only while the
+    # estimated elbow flexion is beyond ``soft_tissue_min_elbow_deg`` (before, a wrong θ2 at
+    # a straight elbow drove it to −0.5 and the upper arm's gyro bias with it: :mod:`.mounting`)
+    soft_tissue_sigma: float = 0.1
+    soft_tissue_min_elbow_deg: float = 30.0
+    # product: the camera's joint-centre offsets (elbow xyz, wrist xyz in S, m), random
+    # constants added to its rows, prior σ ``camera_offset_sigma_m`` (0: off = the paper's
+    # white camera noise). A markerless camera's joint centres are off by about a centimetre
+    # per subject; read as positions, they bend a straight elbow by up to 17°. Half that
+    # centimetre: at a full centimetre the states take the arm overhead (flexion 134°) 5–7 cm
+    # off and abduction 11° with them (docs/benchmarks.md, "Per-angle confidence").
+    camera_offset_sigma_m: float = 0.005
     # The EKF's own P is overconfident about the whole arm's turn about the vertical (it takes
     # information from linearising at a slightly tilted estimate): the reported confidence
     # adds a drift bound that grows at this rate (a residual gyro bias about the vertical) and
@@ -241,7 +261,13 @@ class WearableParams:
         v = self.sigma_pronation_vertical_deg
         if not (math.isfinite(v) and v >= 0):
             raise WearableParamsError(f"sigma_pronation_vertical_deg must be >= 0, not {v!r}")
-        for name in ("sigma_axial_share", "pronation_drift_dps", "vertical_init_deg"):
+        for name in (
+            "sigma_axial_share",
+            "pronation_drift_dps",
+            "vertical_init_deg",
+            "soft_tissue_sigma",
+            "camera_offset_sigma_m",
+        ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise WearableParamsError(f"{name} must be >= 0, not {v!r}")

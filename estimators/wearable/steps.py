@@ -416,7 +416,7 @@ def track(
 ) -> Any:
     """EKF steps at upper-arm times ``t`` (N,) s: per step ``z`` (N, 6, 3), ``avail``,
     ``flags``, ``fix_deg`` (N,) as :func:`finish` takes them; ``have`` (8, 6): the slots a
-    step measures by its ``avail`` bits (:meth:`.model.Model.measured`); ``mis`` (6, 3) and
+    step measures by its ``avail`` bits (:meth:`.model.Model.measured`); ``mis`` (6, 5) and
     ``basis`` (6, 3, 3): the mounting states (:mod:`.mounting`; ``mis`` all −1 without them).
     Returns ``x``, ``P`` and the rows ``out`` (19, N)."""
     out = np.empty((19, t.shape[0]))

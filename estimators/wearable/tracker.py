@@ -97,7 +97,7 @@ class TrackerState:
 
 
 def initial_state(params: WearableParams) -> TrackerState:
-    model = Model.build(params)
+    model = Model.build(params, camera_offsets=False)  # until a camera message comes
     geo = model.geo
     zero = dh.pose(np.zeros(5), geo.upper_arm_m, geo.forearm_m)
     tp = np.zeros(steps.T_SIZE)
@@ -202,12 +202,38 @@ def feed_block(
     if not (len(t) == len(u) == len(v)):
         state.rejected[f"shape_{kind}"] += 1
         t, u, v = t[:0], u[:0], v[:0]
+    if kind == "camera" and len(t) and not state.model.i_cam.size and _wants_offsets(params):
+        add_camera_offsets(params, state)
     if params.side == "left":  # onto the virtual right arm (params.MIRROR)
         if kind == "camera":
             u, v = mirror_vectors(u), mirror_vectors(v)
         else:
             u, v = mirror_rates(u), mirror_vectors(v)
     return _run(params, state, _KIND[kind], t, u, v, final=False)
+
+
+def add_camera_offsets(params: WearableParams, state: TrackerState) -> None:
+    """The camera's offset states join the filter with its first message (a camera-less
+    session never carries them: 6 of 39 states, ~0.15 s of an 8-minute analysis). Until a
+    camera row they are independent of every other state (a prior of their own, no process
+    coupling or walk), so adding them then is the filter that had them from the start."""
+    model = Model.build(params)
+    k = model.n - state.model.n
+    var = np.full(k, params.camera_offset_sigma_m**2)
+
+    def grow(x: F64, P: F64) -> tuple[F64, F64]:
+        Pn = np.zeros((model.n, model.n))
+        Pn[: len(x), : len(x)] = P
+        Pn[len(x) :, len(x) :] = np.diag(var)
+        return np.concatenate((x, np.zeros(k))), Pn
+
+    state.x, state.P = grow(state.x, state.P)
+    state.x0, state.P0 = grow(state.x0, state.P0)
+    state.model = model
+
+
+def _wants_offsets(params: WearableParams) -> bool:
+    return params.camera and params.camera_offset_sigma_m > 0
 
 
 def flush(params: WearableParams, state: TrackerState) -> tuple[Rows, TrackerState]:

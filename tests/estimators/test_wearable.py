@@ -174,7 +174,9 @@ def test_jacobian_matches_finite_differences(model, mounting):
 
 
 def test_process_model_eq3_eq4():
-    p = WearableParams(gyro_bias=False, mounting_states=False, acc_bias=False)
+    p = WearableParams(
+        gyro_bias=False, mounting_states=False, acc_bias=False, camera_offset_sigma_m=0.0
+    )
     mdl = Model.build(p)
     ts = 0.01
     f, q = mdl.transition(ts)
@@ -198,6 +200,7 @@ def test_compiled_predict_and_ekf_step_equal_the_dense_equations(model: str) -> 
     mdl = Model.build(WearableParams(model=model))  # type: ignore[arg-type]
     rng = np.random.default_rng(3)
     x = rng.normal(scale=0.3, size=mdl.n)
+    x[mdl.theta_idx[2, 3]] = 1.0  # a bent elbow: the soft-tissue gain learns (.mounting)
     a = rng.normal(size=(mdl.n, mdl.n))
     P = a @ a.T * 1e-3 + np.eye(mdl.n) * 1e-4
     ts = 0.01
@@ -244,7 +247,12 @@ def test_mounting_states_learn_a_misalignment_from_the_camera():
     err = {}
     for label, p in (
         ("product", WearableParams()),
-        ("paper", WearableParams(gyro_bias=False, acc_bias=False, mounting_states=False)),
+        (
+            "paper",
+            WearableParams(
+                gyro_bias=False, acc_bias=False, mounting_states=False, camera_offset_sigma_m=0.0
+            ),
+        ),
     ):
         rows, st = tracker.run(p, msgs)
         err[label] = [
@@ -261,6 +269,61 @@ def test_mounting_states_learn_a_misalignment_from_the_camera():
                 np.testing.assert_allclose(np.degrees(st.x[idx]), np.degrees(want), atol=1.0)
     assert max(err["product"]) < 1.0
     assert min(err["paper"]) > 2.0 * max(err["product"])
+
+
+def test_soft_tissue_gain_learns_only_across_a_bent_elbow() -> None:
+    """At a straight elbow no sensor tells the upper arm's strap turning with c·θ2 from θ2
+    itself, so the EKF leaves c (and its variance) alone there; across a bent elbow it learns."""
+    from estimators.wearable import filters
+
+    mdl = Model.build(WearableParams())
+    c = int(mdl.i_st[0])
+    x = np.zeros(mdl.n)
+    x[mdl.theta_idx[2, 2]], x[mdl.theta_idx[1, 2]] = 0.8, 1.0  # θ2, θ̇2: the arm rotating
+    P = np.eye(mdl.n) * 1e-3
+    P[c, c] = 0.1**2
+    m = Measurement(np.array([0.3, 0.2, -0.1]), np.array([0.4, 9.6, 0.3]))
+    for elbow, learns in ((0.2, False), (1.2, True)):
+        x[mdl.theta_idx[2, 3]] = elbow
+        xn, Pn, _ = filters.ekf_step(mdl, x, P, 0.0, m)
+        assert (xn[c] != x[c]) == learns, elbow
+        assert (Pn[c, c] < P[c, c]) == learns, elbow
+
+
+@pytest.mark.parametrize("camera", [True, False], ids=["camera", "no-camera"])
+def test_soft_tissue_gain_is_found_in_the_rom_moves(camera: bool) -> None:
+    """The simulator's upper-arm strap turns with 1.10·θ2 (sta_upper = 0.10; the filter's
+    prior is 0 ± 0.1): the ROM moves' rotations at a bent elbow find it."""
+    from simulator import wearable as w
+
+    for seed in (0, 1):
+        cfg = w.WearableSimConfig(move="rom", duration_s=60.0, seed=seed, camera=camera)
+        sim = w.simulate(cfg)
+        _, st = tracker.run(WearableParams.from_json(sim.params), w.tracker_inputs(sim.messages))
+        assert st.x[st.model.i_st[0]] == pytest.approx(cfg.imu.sta_upper, abs=0.03), seed
+
+
+def test_camera_offsets_join_with_the_first_camera_message_as_if_from_the_start() -> None:
+    """A camera-less session never carries the camera's offset states; a session with a
+    camera gets them with its first camera message, and that is the filter that had them from
+    the start (independent of everything until a camera row)."""
+    from simulator import wearable as w
+
+    sim = w.simulate(w.WearableSimConfig(move="reaching", duration_s=8.0, seed=4))
+    p = WearableParams.from_json(sim.params)
+    msgs = w.tracker_inputs(sim.messages)
+    assert msgs[0][0] != "camera"
+    rows, st = tracker.run(p, msgs)
+    assert st.model.i_cam.size == 6
+    early = tracker.initial_state(p)
+    tracker.add_camera_offsets(p, early)  # before any message
+    parts = [tracker.feed(p, early, kind, t, u, v)[0] for kind, t, u, v in msgs]
+    want = tracker.concat([*parts, tracker.flush(p, early)[0]])
+    for key in tracker.ROW_KEYS:
+        np.testing.assert_allclose(rows[key], want[key], rtol=0, atol=1e-9, err_msg=key)
+    none = [m for m in msgs if m[0] != "camera"]
+    _, st = tracker.run(p, none)
+    assert st.model.i_cam.size == 0 and st.model.n == early.model.n - 6
 
 
 def test_camera_rows_are_left_out_without_camera():
