@@ -211,6 +211,11 @@ class WearableParams:
     # ``axial_tau_s`` × sin² θ4 once the elbow bends and the split is seen again.
     sigma_axial_share: float = 0.05
     axial_tau_s: float = 1.0
+    # Pronation's copy of that bound fades slower: once the elbow bends, gravity corrects the
+    # split's error in pronation over several seconds (−10° for ~8 s after the ROM moves'
+    # abduction, seed 209), while shoulder rotation's was never shown sure and wrong; 3 s
+    # (1 s as for rotation until 2026-12-05: docs/benchmarks.md, "Per-angle confidence").
+    pronation_axial_tau_s: float = 3.0
     # With the forearm hanging, pronation drifts (a turn about the vertical; the gyro's bias
     # about the forearm's axis is not seen): its σ² adds b², b growing at this rate × (2c² − 1)
     # (c as above), back to 0 as the forearm comes up.
@@ -271,7 +276,7 @@ class WearableParams:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise WearableParamsError(f"{name} must be >= 0, not {v!r}")
-        for name in ("doubt_rotation_deg", "doubt_tau_s", "axial_tau_s"):
+        for name in ("doubt_rotation_deg", "doubt_tau_s", "axial_tau_s", "pronation_axial_tau_s"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise WearableParamsError(f"{name} must be a finite number > 0, not {v!r}")

@@ -79,7 +79,7 @@ T_SIZE = 37
 # :func:`widen`'s scalar settings, one (6,) array (:class:`.params.WearableParams`: the
 # pronation's vertical term, deg; the rotation's doubt threshold, deg, and fading, s; the
 # straight-elbow share and its fading, s; the hanging forearm's drift, deg/s)
-(K_VERTICAL, K_ROTATION, K_TAU, K_AXIAL, K_AXIAL_TAU, K_DRIFT) = range(6)
+(K_VERTICAL, K_ROTATION, K_TAU, K_AXIAL, K_AXIAL_TAU, K_DRIFT, K_AXIAL_TAU_P) = range(7)
 # the streams (``kind``) and their sample buffers: rows (t, u (3), v (3)), a queue from
 # ``ptr[2 kind]`` of ``ptr[2 kind + 1]`` rows
 K_UPPER, K_FORE, K_CAMERA = range(3)
@@ -492,12 +492,13 @@ def widen(out: Any, terms: Any, doubt: Any, knobs: Any) -> None:
     shoulder rotation (row 3) at the rows' times (row 0). Then the two terms of
     :func:`unobserved` (``axial`` share, ``axial_tau`` s, ``drift`` deg/s; state
     ``doubt[2:]``): rotation and pronation's split while the elbow is straight, pronation's
-    drift while the forearm hangs. The six settings are ``knobs`` (6,) (``K_*``). NaN (no
-    angle) stays NaN.
+    drift while the forearm hangs (pronation's split fading with its own ``axial_tau_p``).
+    The seven settings are ``knobs`` (7,) (``K_*``). NaN (no angle) stays NaN.
     One message's rows per call: per row, the arithmetic of the array form it replaced, in
     the same order (the same numbers bit for bit); the state makes any grouping give the same."""
     vertical, rotation, tau = knobs[K_VERTICAL], knobs[K_ROTATION], knobs[K_TAU]
     axial, axial_tau, drift = knobs[K_AXIAL], knobs[K_AXIAL_TAU], knobs[K_DRIFT]
+    axial_tau_p = knobs[K_AXIAL_TAU_P]
     n = out.shape[1]
     use_doubt = False
     use_new = axial != 0.0 or drift != 0.0
@@ -524,10 +525,12 @@ def widen(out: Any, terms: Any, doubt: Any, knobs: Any) -> None:
             q = d2 / (s if (s != s or s > 1e-12) else 1e-12)  # np.maximum keeps NaN
             c2 = q if q > 0.0 else 0.0  # np.fmax: NaN -> 0
         ax2 = 0.0
+        axp2 = 0.0
         dr2 = 0.0
         if use_new:
-            unobserved(out, k, doubt, axial, axial_tau, drift, c2)
+            unobserved(out, k, doubt, axial, axial_tau, axial_tau_p, drift, c2)
             ax2 = doubt[2] * doubt[2]
+            axp2 = doubt[7] * doubt[7]
             dr2 = doubt[3] * doubt[3]
         for j in range(5):
             a = out[1 + j, k]
@@ -537,26 +540,28 @@ def widen(out: Any, terms: Any, doubt: Any, knobs: Any) -> None:
             if j == 4 and vertical != 0.0:
                 w = vertical * c2
                 e += w * w
-            if use_new and (j == 2 or j == 4):
+            if use_new and j == 2:
                 e += ax2
-                if j == 4:
-                    e += dr2
+            if use_new and j == 4:
+                e += axp2 + dr2
             sd = out[12 + j, k]
             out[12 + j, k] = math.sqrt(sd * sd + e)
 
 
 @jit
 def unobserved(
-    out: Any, k: int, doubt: Any, axial: float, axial_tau: float, drift: float, c2: float
-) -> None:
+    out: Any, k: int, doubt: Any, axial: float, axial_tau: float, axial_tau_p: float,
+    drift: float, c2: float,
+) -> None:  # fmt: skip
     """Two bounds on what no sensor sees, for row ``k`` of ``out``, in ``doubt[2:]``
-    ([axial, drift, t, θ0, θ1] of the previous row; deg, s):
+    ([axial, drift, t, θ0, θ1] of the previous row, then pronation's axial; deg, s):
 
     - *axial*: with the elbow straight, shoulder rotation and pronation turn about the same
       axis (the arm's), so their split is seen by neither gravity nor the camera. It grows by
       ``axial`` × the upper arm's motion (|Δθ0| + |Δθ1|, deg) weighted by cos² of the elbow
       angle (an unknown elbow counts as straight), and fades as exp(−Δt·sin²/``axial_tau``)
-      once the elbow bends (its split is then seen).
+      once the elbow bends (its split is then seen); pronation's copy (``doubt[7]``) fades
+      with ``axial_tau_p``.
     - *drift*: with the forearm hanging (``c2`` its squared vertical component) pronation
       is a turn about the vertical; it grows at ``drift`` deg/s·(2 c2 − 1), down to 0 while
       the forearm is nearer horizontal than vertical (gravity then sees pronation)."""
@@ -574,6 +579,7 @@ def unobserved(
         doubt[5] = a0
         doubt[6] = a1
     doubt[2] = doubt[2] * math.exp(-dt * (1.0 - s) / axial_tau) + axial * s * mv
+    doubt[7] = doubt[7] * math.exp(-dt * (1.0 - s) / axial_tau_p) + axial * s * mv
     doubt[3] = max(0.0, doubt[3] + dt * drift * (2.0 * c2 - 1.0))
 
 

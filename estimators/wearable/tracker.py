@@ -82,14 +82,14 @@ class TrackerState:
     rejected: Counter[str] = field(default_factory=Counter)
     # the σ's doubt after a large shoulder rotation (:func:`.steps.widen`): the first row's
     # time and the running peak of log(g) + (t − t_first)/τ; then :func:`.steps.unobserved`'s
-    # bounds (axial, drift) and the previous row's t, θ0, θ1
+    # bounds (axial, drift), the previous row's t, θ0, θ1 and pronation's axial
     doubt: F64 = field(
-        default_factory=lambda: np.array([math.nan, -math.inf, 0.0, 0.0, *[math.nan] * 3])
+        default_factory=lambda: np.array([math.nan, -math.inf, 0.0, 0.0, *[math.nan] * 3, 0.0])
     )
-    # the σ's terms: floor², share², doubt², (3, 5), and its scalar settings (6,)
+    # the σ's terms: floor², share², doubt², (3, 5), and its scalar settings (7,)
     # (:func:`.steps.widen`, ``steps.K_*``)
     widen: F64 = field(default_factory=lambda: np.zeros((3, 5)))
-    knobs: F64 = field(default_factory=lambda: np.zeros(6))
+    knobs: F64 = field(default_factory=lambda: np.zeros(7))
 
     @property
     def steps(self) -> int:
@@ -146,6 +146,7 @@ def initial_state(params: WearableParams) -> TrackerState:
             params.sigma_axial_share,
             params.axial_tau_s,
             params.pronation_drift_dps,
+            params.pronation_axial_tau_s,
         ]
     )
     return state

@@ -723,7 +723,8 @@ def test_compiled_widening_matches_the_array_form_bit_for_bit():
     extra[4] += (p.sigma_pronation_vertical_deg * c2) ** 2
     # what no sensor sees (steps.unobserved), row by row from the previous row
     ax, dr = np.zeros(n), np.zeros(n)
-    a = b = 0.0
+    a = ap = b = 0.0
+    axp = np.zeros(n)
     prev = (math.nan, math.nan, math.nan)
     for k in range(n):
         dt = out[0, k] - prev[0] if k else 0.0
@@ -737,10 +738,12 @@ def test_compiled_widening_matches_the_array_form_bit_for_bit():
         else:
             prev = (out[0, k], prev[1], prev[2])
         a = a * math.exp(-dt * (1.0 - s) / p.axial_tau_s) + p.sigma_axial_share * s * mv
+        ap = ap * math.exp(-dt * (1.0 - s) / p.pronation_axial_tau_s) + p.sigma_axial_share * s * mv
+        axp[k] = ap
         b = max(0.0, b + dt * p.pronation_drift_dps * (2.0 * c2[k] - 1.0))
         ax[k], dr[k] = a, b
     extra[2] += ax * ax
-    extra[4] += ax * ax
+    extra[4] += axp * axp
     extra[4] += dr * dr
     want = np.sqrt(out[12:17] ** 2 + extra)
     state = tracker.initial_state(p)
