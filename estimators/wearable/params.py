@@ -226,7 +226,8 @@ class WearableParams:
     # the ROM moves). While no camera position has come for ``camera_hold_s``, each angle's σ
     # adds ``sigma_mounting_gain`` × the departure from nominal of the mounting states paired
     # with it (shoulder flexion: the upper-arm IMU's about its lateral axis; abduction: about
-    # its forward axis; elbow flexion: both IMUs' about the lateral axis); 0: off.
+    # its forward axis; elbow flexion: both IMUs' about the lateral axis, the larger of their
+    # signed difference, the elbow's error, and their quadrature sum); 0: off.
     sigma_mounting_gain: float = 1.0
     camera_hold_s: float = 5.0
     init_sigma_deg: float = 5.0  # prior σ of each angle at the zero pose (contract §8 "Start")

@@ -75,7 +75,8 @@ T_MAX_GYRO, T_MAX_ACC, T_VERT_INIT = 22, 23, 24
 # the σ from the mounting states without a camera (:func:`finish`): the gain, how long a camera
 # position counts (s), and (2, 5) the states paired with each angle (−1: none)
 T_MOUNT_GAIN, T_CAM_HOLD, T_MOUNT_IDX = 25, 26, 27
-T_SIZE = 37
+T_MOUNT_SIGN = 37  # (2, 5) the sign each paired state's departure takes in the angle's error
+T_SIZE = 47
 # :func:`widen`'s scalar settings, one (6,) array (:class:`.params.WearableParams`: the
 # pronation's vertical term, deg; the rotation's doubt threshold, deg, and fading, s; the
 # straight-elbow share and its fading, s; the hanging forearm's drift, deg/s)
@@ -369,11 +370,17 @@ def finish(
     if avail & HAVE_ELBOW:
         mon[M_T_CAM] = t
     if tp[T_MOUNT_GAIN] > 0.0 and t - mon[M_T_CAM] > tp[T_CAM_HOLD]:  # (params: no camera)
-        for j in range(5):
+        for j in range(5):  # the paired states' departures: their signed sum (the elbow's:
+            dep = 0.0  # the two IMUs' turns about its axis, one minus the other) where it
+            sq = 0.0  # exceeds their quadrature sum
             for r in range(2):
                 k = int(tp[T_MOUNT_IDX + 5 * r + j])
                 if k >= 0:
-                    o[5 + j] = math.hypot(o[5 + j], tp[T_MOUNT_GAIN] * math.degrees(x[k]))
+                    dep += tp[T_MOUNT_SIGN + 5 * r + j] * x[k]
+                    sq += x[k] * x[k]
+            d = max(abs(dep), math.sqrt(sq))
+            if d != 0.0:
+                o[5 + j] = math.hypot(o[5 + j], tp[T_MOUNT_GAIN] * math.degrees(d))
     if tp[T_LEFT] != 0.0:  # back from the virtual right arm (params.mirror_vectors)
         o[11] = -o[11]
         o[14] = -o[14]

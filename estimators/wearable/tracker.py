@@ -125,7 +125,9 @@ def initial_state(params: WearableParams) -> TrackerState:
     tp[steps.T_MAX_ACC] = params.max_acc_ms2
     tp[steps.T_MOUNT_GAIN] = params.sigma_mounting_gain
     tp[steps.T_CAM_HOLD] = params.camera_hold_s
-    tp[steps.T_MOUNT_IDX : steps.T_MOUNT_IDX + 10] = _mounting_pairs(model, zero).ravel()
+    pairs, signs = _mounting_pairs(model, zero)
+    tp[steps.T_MOUNT_IDX : steps.T_MOUNT_IDX + 10] = pairs.ravel()
+    tp[steps.T_MOUNT_SIGN : steps.T_MOUNT_SIGN + 10] = signs.ravel()
     # the slots a step measures, by what was paired with it (steps.HAVE_* bits)
     bits = np.arange(8)
     have = model.measured(
@@ -152,11 +154,16 @@ def initial_state(params: WearableParams) -> TrackerState:
     return state
 
 
-def _mounting_pairs(model: Model, zero: dh.Pose) -> NDArray[np.intp]:
+def _mounting_pairs(model: Model, zero: dh.Pose) -> tuple[NDArray[np.intp], F64]:
     """(2, 5) the mounting state turning each IMU about each angle's axis at the zero pose
     (the upper arm's about shoulder flexion's and abduction's, both IMUs' about the elbow's;
-    −1: none): the state whose direction is nearest that axis, for any mounting."""
+    −1: none): the state whose direction is nearest that axis, for any mounting; and (2, 5)
+    the sign its departure takes in the angle's error. An IMU's turn about an angle's axis
+    reads as the angle turned back, the forearm IMU's as the elbow's, the upper arm's as the
+    whole chain's, the elbow's forth: the elbow's error is the upper arm's turn minus the
+    forearm's, both about its axis."""
     pairs = np.full((2, 5), -1, dtype=np.intp)
+    signs = np.zeros((2, 5))
     for r, (idx, slot, R_seg, R_xi, joints) in enumerate(
         (
             (model.i_mu, kernel.GYR_U, zero.R_SU, model.geo.R_UI, (0, 1, 3)),
@@ -167,8 +174,11 @@ def _mounting_pairs(model: Model, zero: dh.Pose) -> NDArray[np.intp]:
             continue
         dirs = R_seg @ R_xi @ model.mis_basis[slot][:, : idx.size]  # the states' axes in S
         for j in joints:
-            pairs[r, j] = idx[int(np.argmax(np.abs(zero.axes[j] @ dirs)))]
-    return pairs
+            proj = zero.axes[j] @ dirs
+            c = int(np.argmax(np.abs(proj)))
+            pairs[r, j] = idx[c]
+            signs[r, j] = np.sign(proj[c]) * (-1.0 if r == 1 else 1.0)
+    return pairs, signs
 
 
 Rows = dict[str, F64]

@@ -326,6 +326,29 @@ def test_camera_offsets_join_with_the_first_camera_message_as_if_from_the_start(
     assert st.model.i_cam.size == 0 and st.model.n == early.model.n - 6
 
 
+def test_elbow_mounting_term_signs_a_relative_turn() -> None:
+    """Without a camera the elbow's σ takes the two IMUs' departures about its axis with
+    signs: both straps turned the same way is the whole arm turned (no elbow error), turned
+    apart is an elbow error of both turns together."""
+    mdl = Model.build(WearableParams())
+    zero = dh.pose(np.zeros(5), mdl.geo.upper_arm_m, mdl.geo.forearm_m)
+    pairs, signs = tracker._mounting_pairs(mdl, zero)
+    k_u, k_f = pairs[:, 3]
+    assert k_u in mdl.i_mu and k_f in mdl.i_mf
+
+    def along(idx: np.ndarray, slot: int, R_seg: np.ndarray, R_xi: np.ndarray, k: int) -> float:
+        dirs = R_seg @ R_xi @ mdl.mis_basis[slot][:, : idx.size]  # the states' axes in S
+        return float(zero.axes[3] @ dirs[:, list(idx).index(k)])
+
+    p_u = along(mdl.i_mu, 0, zero.R_SU, mdl.geo.R_UI, k_u)
+    p_f = along(mdl.i_mf, 2, zero.R_SF, mdl.geo.R_FI, k_f)
+    eps = 0.1  # rad about the elbow's axis: each state's share of it
+    together = signs[0, 3] * p_u * eps + signs[1, 3] * p_f * eps
+    apart = signs[0, 3] * p_u * eps - signs[1, 3] * p_f * eps
+    assert abs(together) < 1e-9
+    assert abs(apart) == pytest.approx(2 * eps, rel=1e-6)
+
+
 def test_camera_rows_are_left_out_without_camera():
     mdl = Model.build(WearableParams())
     z3 = np.zeros(3)
