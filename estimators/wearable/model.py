@@ -108,7 +108,7 @@ class Model:
         i_mu = take(3 if p.mounting_states else 0)
         i_mf = take(2 if p.mounting_states and use_f else 0)
         i_st = take(1 if p.soft_tissue_sigma > 0 and p.mounting_states else 0)
-        i_cam = take(6 if camera_offsets and p.camera_offset_sigma_m > 0 and p.camera else 0)
+        i_cam = take(6 if camera_offsets and wants_camera_offsets(p) else 0)
         mis_idx = np.full((6, 5), -1, dtype=np.intp)
         if i_st.size:
             mis_idx[kernel.GYR_U, 4] = mis_idx[kernel.ACC_U, 4] = i_st[0]
@@ -343,6 +343,11 @@ class Model:
         else:
             h, H = kernel.measure(x, have, *self.measure_args(jacobian))
         return h, (H if jacobian else np.zeros((0, self.n)))
+
+
+def wants_camera_offsets(p: WearableParams) -> bool:
+    """Whether the model carries the camera's offset states once there is a camera."""
+    return p.camera and p.camera_offset_sigma_m > 0
 
 
 def _across_long_axis(r_seg_imu: F64) -> F64:

@@ -585,8 +585,9 @@ def unobserved(
             mv = abs(a0 - doubt[5]) + abs(a1 - doubt[6])
         doubt[5] = a0
         doubt[6] = a1
-    doubt[2] = doubt[2] * math.exp(-dt * (1.0 - s) / axial_tau) + axial * s * mv
-    doubt[7] = doubt[7] * math.exp(-dt * (1.0 - s) / axial_tau_p) + axial * s * mv
+    lost = axial * s * mv
+    doubt[2] = doubt[2] * math.exp(-dt * (1.0 - s) / axial_tau) + lost
+    doubt[7] = doubt[7] * math.exp(-dt * (1.0 - s) / axial_tau_p) + lost
     doubt[3] = max(0.0, doubt[3] + dt * drift * (2.0 * c2 - 1.0))
 
 

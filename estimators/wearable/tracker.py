@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from estimators.wearable import dh, filters, kernel, steps
 from estimators.wearable.dh import F64, I64
-from estimators.wearable.model import DEG, Measurement, Model
+from estimators.wearable.model import DEG, Measurement, Model, wants_camera_offsets
 from estimators.wearable.params import WearableParams, mirror_rates, mirror_vectors
 
 # row flags (bits; the compiled steps set them: :mod:`.steps`)
@@ -213,7 +213,7 @@ def feed_block(
     if not (len(t) == len(u) == len(v)):
         state.rejected[f"shape_{kind}"] += 1
         t, u, v = t[:0], u[:0], v[:0]
-    if kind == "camera" and len(t) and not state.model.i_cam.size and _wants_offsets(params):
+    if kind == "camera" and len(t) and not state.model.i_cam.size and wants_camera_offsets(params):
         add_camera_offsets(params, state)
     if params.side == "left":  # onto the virtual right arm (params.MIRROR)
         if kind == "camera":
@@ -229,22 +229,17 @@ def add_camera_offsets(params: WearableParams, state: TrackerState) -> None:
     camera row they are independent of every other state (a prior of their own, no process
     coupling or walk), so adding them then is the filter that had them from the start."""
     model = Model.build(params)
-    k = model.n - state.model.n
-    var = np.full(k, params.camera_offset_sigma_m**2)
+    n = state.model.n
+    x_new, P_new = model.initial()  # the new states' prior: the tail (they come last)
 
     def grow(x: F64, P: F64) -> tuple[F64, F64]:
-        Pn = np.zeros((model.n, model.n))
-        Pn[: len(x), : len(x)] = P
-        Pn[len(x) :, len(x) :] = np.diag(var)
-        return np.concatenate((x, np.zeros(k))), Pn
+        Pn = P_new.copy()
+        Pn[:n, :n] = P  # (P_new is diagonal: no cross terms to clear)
+        return np.concatenate((x, x_new[n:])), Pn
 
     state.x, state.P = grow(state.x, state.P)
     state.x0, state.P0 = grow(state.x0, state.P0)
     state.model = model
-
-
-def _wants_offsets(params: WearableParams) -> bool:
-    return params.camera and params.camera_offset_sigma_m > 0
 
 
 def flush(params: WearableParams, state: TrackerState) -> tuple[Rows, TrackerState]:
