@@ -19,11 +19,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import orjson
 
 from backend import clinical, csv_text
 from backend.clock_guard import ClockGuard, Verdict
 from backend.csv_text import Column
+from backend.report_json import dump_report
 from estimators.output import Output, RowTable, concat_rows
 from estimators.params import PipelineParams
 from estimators.pipeline import Pipeline
@@ -435,26 +435,8 @@ def write_outputs(run: DeviceRun, report: dict[str, Any], out: Path) -> None:
     (out / "report.json").write_text(dump_report(report))
 
 
-def dump_report(report: dict[str, Any]) -> str:
-    """``report.json``'s exact text (the live service writes the same bytes): orjson, indented
-    (the standard library's encoder is pure Python once indenting, ~7× slower on a report's
-    per-cycle paths). A non-finite float is null (the report holds none: :func:`_finite`)."""
-    return orjson.dumps(report, option=_REPORT_OPTS, default=_json_default).decode()
-
-
-_REPORT_OPTS = orjson.OPT_INDENT_2 | orjson.OPT_SERIALIZE_NUMPY | orjson.OPT_NON_STR_KEYS
-
-
 def _finite(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
-
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(type(o).__name__)
 
 
 def read_estimates(path: str | Path) -> dict[str, np.ndarray]:

@@ -9,8 +9,10 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from estimators.params import ParamsError, PipelineParams
+if TYPE_CHECKING:  # the robot pipeline is imported only for its own analyses (not the wearable's)
+    from estimators.params import PipelineParams
 
 # the modules registering the other sub-commands, and the names they register
 _COMMANDS: tuple[tuple[str, tuple[str, ...]], ...] = (
@@ -22,6 +24,8 @@ _COMMANDS: tuple[tuple[str, tuple[str, ...]], ...] = (
 
 
 def _load_params(path: str | None) -> PipelineParams:
+    from estimators.params import ParamsError, PipelineParams
+
     if path is None:
         return PipelineParams()
     try:

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from estimators import anatomy
 from estimators import movement_quality as mq
-from estimators.cycles import CycleParams, CycleSegmenter, path_and_reach
+from estimators.cycles import Boundary, CycleParams, CycleSegmenter, path_and_reach
 
 # the estimate rows' columns the sections need beyond the analysis' own statistics
 COLUMNS = ("q_ra", "wrist")
@@ -241,8 +241,14 @@ def wearable_movements(
         for te in sorted(event_times):
             seg.add_event(float(te))
         found = [seg.update(tt, ww) + seg.update(np.zeros(0), np.zeros((0, 3)))]
-    else:  # both detectors in one pass; the path detector's wins a tie
+    else:  # both detectors in one pass
         found = list(path_and_reach(tt, ww, base))
+    return most_movements(found)
+
+
+def most_movements(found: Sequence[Sequence[Boundary]]) -> list[dict[str, Any]]:
+    """The movements (``{"start", "end"}``, s) of the detector (its boundaries, in
+    :func:`wearable_movements`' order) that finds the most; the first wins a tie."""
     best: list[dict[str, Any]] = []
     for bounds in found:
         got = [

@@ -465,35 +465,52 @@ class _ReachDetector(_Detector):
         self._prev = (t, pv)
 
 
+class PathAndReach:
+    """The ``"path"`` and the ``"reach"`` detectors over the same wrist samples, streaming:
+    :meth:`update` with consecutive chunks of the samples gives the same boundaries
+    (:attr:`path`, :attr:`reach`, so far) as one call with all of them, and the same as a
+    ``"path"`` and a ``"reach"`` :class:`CycleSegmenter` each fed the samples, with one moving
+    window for both (the path centre is the window's first two moments, the same sums in the
+    same order). ``params.mode`` is not used."""
+
+    def __init__(self, params: CycleParams | None = None) -> None:
+        p = params if params is not None else CycleParams()
+        self._win = _MovingWindow(p)
+        self._path, self._reach = _PathDetector(p), _ReachDetector(p)
+        self.path: list[Boundary] = []
+        self.reach: list[Boundary] = []
+
+    def update(self, t: ArrayLike, wrist: ArrayLike) -> None:
+        """``t`` (N,) s strictly increasing (and after the previous chunk's), ``wrist`` (N,3) m,
+        as :meth:`CycleSegmenter.update`."""
+        tt = np.asarray(t, dtype=np.float64)
+        ww = np.asarray(wrist, dtype=np.float64)
+        n = tt.shape[0]
+        if ww.shape != (n, 3):
+            raise ValueError("wrist must have shape (N, 3) matching t")
+        if n == 0:
+            return
+        path, reach = self._path, self._reach
+        if path.origin is None:  # the first sample: a fixed point for the numerical range
+            path.origin = reach.origin = (float(ww[0, 0]), float(ww[0, 1]))
+        ox, oy = path.origin
+        step_path, step_reach, moments = path.step_at, reach.step_at, self._win.step
+        out_path, out_reach = self.path, self.reach
+        for ti, xi, yi in zip(tt.tolist(), ww[:, 0].tolist(), ww[:, 1].tolist(), strict=True):
+            x, y = xi - ox, yi - oy
+            m = moments(ti, x, y)
+            step_path(ti, x, y, m[0], m[1], out_path)
+            step_reach(ti, x, y, m, out_reach)
+
+
 def path_and_reach(
     t: ArrayLike, wrist: ArrayLike, params: CycleParams | None = None
 ) -> tuple[list[Boundary], list[Boundary]]:
-    """The ``"path"`` and the ``"reach"`` detectors' boundaries of the same wrist samples in one
-    pass (``t`` (N,) s strictly increasing, ``wrist`` (N,3) m, as :meth:`CycleSegmenter.update`;
-    ``params.mode`` is not used): the same boundaries as a ``"path"`` and a ``"reach"``
-    :class:`CycleSegmenter` each fed the samples, with one moving window for both (the path
-    centre is the window's first two moments, the same sums in the same order)."""
-    p = params if params is not None else CycleParams()
-    tt = np.asarray(t, dtype=np.float64)
-    ww = np.asarray(wrist, dtype=np.float64)
-    n = tt.shape[0]
-    if ww.shape != (n, 3):
-        raise ValueError("wrist must have shape (N, 3) matching t")
-    path, reach = _PathDetector(p), _ReachDetector(p)
-    out_path: list[Boundary] = []
-    out_reach: list[Boundary] = []
-    if n == 0:
-        return out_path, out_reach
-    win = _MovingWindow(p)
-    ox, oy = float(ww[0, 0]), float(ww[0, 1])
-    path.origin = reach.origin = (ox, oy)
-    step_path, step_reach, moments = path.step_at, reach.step_at, win.step
-    for ti, xi, yi in zip(tt.tolist(), ww[:, 0].tolist(), ww[:, 1].tolist(), strict=True):
-        x, y = xi - ox, yi - oy
-        m = moments(ti, x, y)
-        step_path(ti, x, y, m[0], m[1], out_path)
-        step_reach(ti, x, y, m, out_reach)
-    return out_path, out_reach
+    """:class:`PathAndReach` over all the samples in one call: the ``"path"`` and the
+    ``"reach"`` boundaries (``t`` (N,) s strictly increasing, ``wrist`` (N,3) m)."""
+    both = PathAndReach(params)
+    both.update(t, wrist)
+    return both.path, both.reach
 
 
 class CycleSegmenter:

@@ -22,8 +22,9 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any, NamedTuple
 
-from backend.analysis import CSV_HEADER, DETAILS_HEADER, analyze, dump_report
+from backend.analysis import CSV_HEADER, DETAILS_HEADER, analyze
 from backend.analysis_wearable import JOINTS_HEADER
+from backend.report_json import dump_report
 from estimators.params import PipelineParams
 from protocol import recording
 

@@ -21,6 +21,7 @@ from estimators.cycles import (
     Boundary,
     CycleParams,
     CycleSegmenter,
+    PathAndReach,
     _MovingWindow,
     path_and_reach,
 )
@@ -486,3 +487,17 @@ def test_path_and_reach_in_one_pass_equals_each_detector_alone(session):
     assert key(path) == key(alone[0])
     assert key(reach) == key(alone[1])
     assert path_and_reach(t[:0], wrist[:0]) == ([], [])
+
+
+@pytest.mark.parametrize("session", ["loop", "reach"])
+def test_path_and_reach_streaming_in_any_chunks_equals_one_pass(session):
+    t, wrist = (_LOOP if session == "loop" else _REACH)[:2]
+    path, reach = path_and_reach(t, wrist)
+    assert len(path if session == "loop" else reach) >= 6
+    rng = np.random.default_rng(3)
+    for cuts in ([1], sorted(rng.choice(np.arange(1, len(t)), 40, replace=False))):
+        both = PathAndReach()
+        for tc, wc in zip(np.split(t, cuts), np.split(wrist, cuts), strict=True):
+            both.update(tc, wc)
+        assert key(both.path) == key(path)
+        assert key(both.reach) == key(reach)
