@@ -31,7 +31,8 @@ Gravity and the gyros cannot tell ``δ`` about an angle's own axis from the angl
 flexion and the forearm IMU's turn about the flexion axis turn both readings the same way);
 the camera's positions can, and without a camera only the size of the kinematic
 accelerations, at second order (``sigma_mounting_gain`` adds the states' departure from
-nominal to the paired angles' σ while there is no camera: :func:`.steps.finish`).
+nominal to the paired angles' σ while there is no camera, ``sigma_mounting_change_gain`` and
+``sigma_upper_change_gain`` how far they have just moved: :func:`.steps.finish`).
 
 Soft tissue (``soft_tissue_sigma``): the skin under the upper arm's strap slides over the
 humerus, so the IMU turns about the arm's long axis by ``c·θ2`` more than the bone, θ2 being the

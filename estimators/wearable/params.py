@@ -53,6 +53,8 @@ FIRST_ORDER: dict[str, Any] = {
     "mounting_turn": "first_order",
     "acc_bias": False,
     "sigma_mounting_gain": 0.0,
+    "sigma_mounting_change_gain": 0.0,
+    "sigma_upper_change_gain": 0.0,
     "vertical_init_deg": 12.0,
     "soft_tissue_sigma": 0.0,
     "camera_offset_sigma_m": 0.0,
@@ -230,6 +232,18 @@ class WearableParams:
     # signed difference, the elbow's error, and their quadrature sum); 0: off.
     sigma_mounting_gain: float = 1.0
     camera_hold_s: float = 5.0
+    # A mounting state that has just moved is being learnt again: after the ROM moves' fast
+    # overhead flexion the upper arm's states swing by 5–25° and back within seconds, abduction
+    # 7–10° off meanwhile and shown sure (seeds 102, 203, 209), and the elbow's pair slides in
+    # the elbow moves (seeds 300, 310; the camera's, seed 210). With ``sigma_mounting_gain``
+    # on, each angle's σ adds ``sigma_mounting_change_gain`` × how far its paired departure
+    # (as above) is from its average over ``mounting_change_tau_s``, camera or not; without
+    # a camera shoulder flexion's and abduction's add ``sigma_upper_change_gain`` × the same
+    # for the upper-arm IMU's whole turn (all three states: the one about the arm's long axis
+    # is paired with no angle, yet tilts their split once the arm is raised); 0: off.
+    sigma_mounting_change_gain: float = 1.0
+    sigma_upper_change_gain: float = 0.5
+    mounting_change_tau_s: float = 20.0
     init_sigma_deg: float = 5.0  # prior σ of each angle at the zero pose (contract §8 "Start")
     # streams
     forearm_tolerance_s: float = 0.006  # a forearm sample this close pairs with the upper one
@@ -273,11 +287,19 @@ class WearableParams:
             "vertical_init_deg",
             "soft_tissue_sigma",
             "camera_offset_sigma_m",
+            "sigma_mounting_change_gain",
+            "sigma_upper_change_gain",
         ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise WearableParamsError(f"{name} must be >= 0, not {v!r}")
-        for name in ("doubt_rotation_deg", "doubt_tau_s", "axial_tau_s", "pronation_axial_tau_s"):
+        for name in (
+            "doubt_rotation_deg",
+            "doubt_tau_s",
+            "axial_tau_s",
+            "pronation_axial_tau_s",
+            "mounting_change_tau_s",
+        ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise WearableParamsError(f"{name} must be a finite number > 0, not {v!r}")

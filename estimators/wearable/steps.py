@@ -41,7 +41,10 @@ HAVE_FOREARM, HAVE_ELBOW, HAVE_WRIST = 1, 2, 4
 (M_STICKY, M_NIS_SUM, M_NIS_LEN, M_NIS_POS, M_RESTARTED, M_STEPS) = range(8, 14)
 M_ACC_U, M_ACC_F = 14, 17  # (3,) each: sums of the specific force over the rest window
 M_T_CAM = 20  # the last step with a camera position (−inf: none yet)
-M_SIZE = 21
+# the averages (over ``T_CHANGE_TAU``) of each angle's paired mounting departure (5,) and of
+# the upper-arm IMU's mounting states (3,): what :func:`finish` measures their change from
+M_SLOW, M_SLOW_U = 21, 26
+M_SIZE = 29
 # ``counts``: rejections by reason
 COUNT_NAMES = (
     "gap_restart",
@@ -76,7 +79,10 @@ T_MAX_GYRO, T_MAX_ACC, T_VERT_INIT = 22, 23, 24
 # position counts (s), and (2, 5) the states paired with each angle (−1: none)
 T_MOUNT_GAIN, T_CAM_HOLD, T_MOUNT_IDX = 25, 26, 27
 T_MOUNT_SIGN = 37  # (2, 5) the sign each paired state's departure takes in the angle's error
-T_SIZE = 47
+# the σ from the mounting states' change (:func:`finish`): its gain, the upper arm's whole
+# turn's gain (no camera), the averages' time constant (s), the upper-arm states (3,) (−1: none)
+T_CHANGE_GAIN, T_CHANGE_U, T_CHANGE_TAU, T_MU_IDX = 47, 48, 49, 50
+T_SIZE = 53
 # :func:`widen`'s scalar settings, one (6,) array (:class:`.params.WearableParams`: the
 # pronation's vertical term, deg; the rotation's doubt threshold, deg, and fading, s; the
 # straight-elbow share and its fading, s; the hanging forearm's drift, deg/s)
@@ -261,6 +267,8 @@ def begin(x: Any, P: Any, mon: Any, tp: Any, counts: Any, t: float, x0: Any, P0:
         mon[M_REST_N] = mon[M_REST_NF] = mon[M_GYRO_MAX] = mon[M_CHECKED] = 0.0
         mon[M_STICKY] = mon[M_NIS_SUM] = mon[M_NIS_LEN] = mon[M_NIS_POS] = 0.0
         mon[M_VERT] = tp[T_INIT_SIGMA] + tp[T_VERT_INIT]
+        for k in range(M_SLOW, M_SIZE):  # the mounting states start again from nominal
+            mon[k] = 0.0
         ts = 0.0
     else:
         ts = t - mon[M_T_LAST]
@@ -369,7 +377,11 @@ def finish(
     o = kernel.emit(x, P, ia, fa, math.radians(mon[M_VERT]))
     if avail & HAVE_ELBOW:
         mon[M_T_CAM] = t
-    if tp[T_MOUNT_GAIN] > 0.0 and t - mon[M_T_CAM] > tp[T_CAM_HOLD]:  # (params: no camera)
+    if tp[T_MOUNT_GAIN] > 0.0:
+        blind = t - mon[M_T_CAM] > tp[T_CAM_HOLD]  # (params: no camera)
+        # a mounting state that has just moved is being learnt again: the change from its
+        # average over T_CHANGE_TAU (first step: from nominal, as the states start there)
+        a = min(1.0, ts / tp[T_CHANGE_TAU])
         for j in range(5):  # the paired states' departures: their signed sum (the elbow's:
             dep = 0.0  # the two IMUs' turns about its axis, one minus the other) where it
             sq = 0.0  # exceeds their quadrature sum
@@ -379,8 +391,22 @@ def finish(
                     dep += tp[T_MOUNT_SIGN + 5 * r + j] * x[k]
                     sq += x[k] * x[k]
             d = max(abs(dep), math.sqrt(sq))
-            if d != 0.0:
+            change = dep - mon[M_SLOW + j]
+            mon[M_SLOW + j] += a * change
+            if blind and d != 0.0:
                 o[5 + j] = math.hypot(o[5 + j], tp[T_MOUNT_GAIN] * math.degrees(d))
+            if change != 0.0:  # camera or not
+                o[5 + j] = math.hypot(o[5 + j], tp[T_CHANGE_GAIN] * math.degrees(change))
+        turned = 0.0  # the upper-arm IMU's whole turn (its long axis's state is paired with
+        for c in range(3):  # no angle, yet tilts flexion's and abduction's split once raised)
+            k = int(tp[T_MU_IDX + c])
+            if k >= 0:
+                dc = x[k] - mon[M_SLOW_U + c]
+                mon[M_SLOW_U + c] += a * dc
+                turned += dc * dc
+        if blind and turned != 0.0:
+            for j in range(2):
+                o[5 + j] = math.hypot(o[5 + j], tp[T_CHANGE_U] * math.degrees(math.sqrt(turned)))
     if tp[T_LEFT] != 0.0:  # back from the virtual right arm (params.mirror_vectors)
         o[11] = -o[11]
         o[14] = -o[14]

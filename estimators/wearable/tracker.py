@@ -125,6 +125,11 @@ def initial_state(params: WearableParams) -> TrackerState:
     tp[steps.T_MAX_ACC] = params.max_acc_ms2
     tp[steps.T_MOUNT_GAIN] = params.sigma_mounting_gain
     tp[steps.T_CAM_HOLD] = params.camera_hold_s
+    tp[steps.T_CHANGE_GAIN] = params.sigma_mounting_change_gain
+    tp[steps.T_CHANGE_U] = params.sigma_upper_change_gain
+    tp[steps.T_CHANGE_TAU] = params.mounting_change_tau_s
+    tp[steps.T_MU_IDX : steps.T_MU_IDX + 3] = -1
+    tp[steps.T_MU_IDX : steps.T_MU_IDX + model.i_mu.size] = model.i_mu
     pairs, signs = _mounting_pairs(model, zero)
     tp[steps.T_MOUNT_IDX : steps.T_MOUNT_IDX + 10] = pairs.ravel()
     tp[steps.T_MOUNT_SIGN : steps.T_MOUNT_SIGN + 10] = signs.ravel()
