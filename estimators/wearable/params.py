@@ -237,13 +237,14 @@ class WearableParams:
     # A mounting state that has just moved is being learnt again: after the ROM moves' fast
     # overhead flexion the upper arm's states swing by 5–25° and back within seconds, abduction
     # 7–10° off meanwhile and shown sure (seeds 102, 203, 209), and the elbow's pair slides in
-    # the elbow moves (seeds 300, 310). While there is no camera (as above) each angle's σ
-    # adds ``sigma_mounting_change_gain`` × how far its paired departure (as above) is from
-    # its average over ``mounting_change_tau_s``, and shoulder flexion's and abduction's
-    # ``sigma_upper_change_gain`` × the same for the upper-arm IMU's whole turn (all three
-    # states: the one about the arm's long axis is paired with no angle, yet tilts their split
-    # once the arm is raised); 0: off. (With a camera too it greyed the overhead flexion the
-    # camera holds, so the ROM test's maximal flexion was not recorded.)
+    # the elbow moves (seeds 300, 310; with a camera, 210, 505, 509). While there is no camera
+    # (as above) each angle's σ adds ``sigma_mounting_change_gain`` × how far its paired
+    # departure (as above) is from its average over ``mounting_change_tau_s``, the elbow's
+    # with a camera too, and shoulder flexion's and abduction's ``sigma_upper_change_gain`` ×
+    # the same for the upper-arm IMU's whole turn (all three states: the one about the arm's
+    # long axis is paired with no angle, yet tilts their split once the arm is raised); 0:
+    # off. (The shoulder's with a camera greyed the overhead flexion the camera holds, so the
+    # ROM test's maximal flexion was not recorded.)
     sigma_mounting_change_gain: float = 1.0
     sigma_upper_change_gain: float = 0.5
     mounting_change_tau_s: float = 20.0

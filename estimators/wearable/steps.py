@@ -395,7 +395,7 @@ def finish(
             mon[M_SLOW + j] += a * change
             if blind and d != 0.0:
                 o[5 + j] = math.hypot(o[5 + j], tp[T_MOUNT_GAIN] * math.degrees(d))
-            if blind and change != 0.0:
+            if (blind or j == 3) and change != 0.0:  # the elbow's with a camera too
                 o[5 + j] = math.hypot(o[5 + j], tp[T_CHANGE_GAIN] * math.degrees(change))
         turned = 0.0  # the upper-arm IMU's whole turn (its long axis's state is paired with
         for c in range(3):  # no angle, yet tilts flexion's and abduction's split once raised)
