@@ -12,6 +12,7 @@ import dataclasses
 import math
 import multiprocessing
 import queue
+import threading
 import traceback
 from collections import Counter
 from multiprocessing.process import BaseProcess
@@ -222,8 +223,8 @@ def analyze(
 
     ``parallel`` (``rehab analyze``): in two processes, the tracker in this one and the rest
     in a second one (:func:`_read_and_write`): the same bytes, sooner on two cores. Forked
-    where the platform can (no imports to wait for), so not from a process with threads
-    (the service)."""
+    where the platform can and this process runs no other thread, else spawned (it then
+    imports this module before it starts). The service does not use it."""
     if parallel:
         return _analyze_in_two(Path(path), params, Path(out), device)
     run = WearableRun(params, device)
@@ -268,7 +269,8 @@ def _analyze_in_two(
     and the report; this one only tracks (the bottleneck: about half the single process's
     time is elsewhere). The tracker's own rejections go over at the end, so the counts are
     the single process's."""
-    fork = "fork" in multiprocessing.get_all_start_methods()
+    # forked (no imports to wait for) unless another thread could hold a lock the copy needs
+    fork = "fork" in multiprocessing.get_all_start_methods() and threading.active_count() == 1
     ctx = multiprocessing.get_context("fork") if fork else multiprocessing.get_context("spawn")
     to_parent: multiprocessing.Queue[tuple[Any, ...]] = ctx.Queue()
     to_child: multiprocessing.Queue[F64 | dict[str, int]] = ctx.Queue()

@@ -112,3 +112,25 @@ def test_rows_handed_over_in_any_batches_give_the_same_outputs(tmp_path: Path) -
         outs.append([(tmp_path / str(k) / n).read_bytes() for n in names])
     assert outs[0] == outs[1] == outs[2]
     assert json.loads(outs[0][1])["summary"]["movements"] >= 3
+
+
+def test_two_processes_from_a_process_with_threads(tmp_path: Path) -> None:
+    """With another thread running (a lock it holds would be copied held into a fork) the
+    second process is spawned, not forked: the same bytes."""
+    import threading
+
+    msgs, params_obj = _messages(False)
+    path = _write(tmp_path, msgs[:1500])
+    params = aw.load_params(params_obj)
+    stop = threading.Event()
+    other = threading.Thread(target=stop.wait)
+    other.start()
+    try:
+        two = aw.analyze(path, params, tmp_path / "two", parallel=True)
+    finally:
+        stop.set()
+        other.join()
+    one = aw.analyze(path, params, tmp_path / "one")
+    for name in (aw.JOINTS_NAME, aw.REPORT_NAME):
+        assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "two" / name).read_bytes()
+    assert two["summary"]["rows"] == one["summary"]["rows"] > 500
