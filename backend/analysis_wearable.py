@@ -17,7 +17,7 @@ import traceback
 from collections import Counter
 from multiprocessing.process import BaseProcess
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -284,7 +284,7 @@ def _analyze_in_two(
     done = False
     try:
         run = WearableRun(params, device)
-        while (item := _get(to_parent, child))[0] == "tracks":
+        while (item := _next(to_parent, child))[0] == "tracks":
             _, kinds, ends, t, u, v = item
             start = 0
             for kind, end in zip(kinds, ends, strict=True):
@@ -296,7 +296,7 @@ def _analyze_in_two(
             run.finish()
             to_child.put(run.take_block())
             to_child.put(dict(run.state.rejected))
-            item = _get(to_parent, child)
+            item = _next(to_parent, child)
         if item[0] != "report":
             raise RuntimeError(f"rehab analyze's second process failed:\n{item[1]}")
         report: dict[str, Any] = item[1]
@@ -311,14 +311,19 @@ def _analyze_in_two(
             q.close()
 
 
-def _get(q: multiprocessing.Queue[tuple[Any, ...]], child: BaseProcess) -> tuple[Any, ...]:
-    """The next item from the second process; an error if it ended without one."""
+_T = TypeVar("_T")
+
+
+def _next(q: multiprocessing.Queue[_T], other: BaseProcess | None) -> _T:
+    """The next item from the other process; an error if it has ended without one."""
     while True:
         try:
             return q.get(timeout=1.0)
         except queue.Empty:
-            if not child.is_alive():
-                return ("error", f"it ended (exit code {child.exitcode}) without its report")
+            if other is not None and not other.is_alive():
+                raise RuntimeError(
+                    f"rehab analyze's {other.name} process ended (exit code {other.exitcode})"
+                ) from None
 
 
 def _read_and_write(
@@ -340,7 +345,7 @@ def _read_and_write(
             to_parent.put(reader.pack())
         to_parent.put(("end",))
         writer = ReportWriter(params, Path(out))
-        while not isinstance(item := _from_parent(to_child), dict):
+        while not isinstance(item := _next(to_child, multiprocessing.parent_process()), dict):
             writer.add(item)
         info = reader.info()  # its tracker never ran: the tracker's rejections are the parent's
         rejected = Counter(info.rejected) + Counter(item)
@@ -348,16 +353,6 @@ def _read_and_write(
         to_parent.put(("report", writer.finish(info)))
     except BaseException:  # to the parent, which raises it
         to_parent.put(("error", traceback.format_exc()))
-
-
-def _from_parent(q: multiprocessing.Queue[F64 | dict[str, int]]) -> F64 | dict[str, int]:
-    parent = multiprocessing.parent_process()
-    while True:
-        try:
-            return q.get(timeout=1.0)
-        except queue.Empty:
-            if parent is not None and not parent.is_alive():
-                raise RuntimeError("rehab analyze's tracker process ended") from None
 
 
 JOINTS_HEADER = ",".join(tracker.COLUMNS)
