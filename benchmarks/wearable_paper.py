@@ -9,7 +9,8 @@ The paper's figures are printed beside ours. Markdown on stdout.
 ``--only coverage`` (or ``sure``) also prints what the dashboard shows: rows shown sure and
 those shown sure but wrong by more than the dashboard's ``SURE_STD_DEG`` (and also beyond
 their own 2σ, the plots' band); ``--only rom-elbow``
-where the ROM moves' elbow flexion is wrongly sure, with each simulated error off in turn.
+where the ROM moves' elbow flexion is wrongly sure, with each simulated error off in turn;
+``--only drift-sure`` whether a drifting angle is shown sure in 8-minute camera-less sessions.
 """
 
 from __future__ import annotations
@@ -616,6 +617,20 @@ def coverage(seeds: int, dur: float, first: int = 100) -> None:
             f"({100 * np.max(r[:, 5]):.1f})"
         ),
     )
+    # the target is per trial: which of the product's trials miss it, and by how much
+    for k, what in ((4, "wrongly sure"), (5, "sure and outside")):
+        over = [
+            f"{name} {ANGLES[j][:-4]} seed {first + s}: {100 * r[s, j, k]:.1f} %"
+            for (name, label), r in runs.items()
+            if label == "product"
+            for s in range(seeds)
+            for j in range(len(ANGLES))
+            if r[s, j, k] > 0.02
+        ]
+        n = seeds * len(ANGLES) * sum(label == "product" for _, label in runs)
+        print(f"\nProduct's trial-angle pairs {what} on more than 2 % of rows: {len(over)} of {n}")
+        for o in over:
+            print(f"- {o}")
     print()
 
 
@@ -709,6 +724,43 @@ def drift(dur: float) -> None:
     print()
 
 
+def drift_sure(seeds: int, dur: float) -> None:
+    """Is a drifting angle ever shown sure? Long camera-less sessions (the turn about the
+    vertical unseen for minutes) with the simulator's gyro bias and twice it: per angle, the
+    rows shown sure and those shown sure while off by more than ``SURE_STD_DEG``, after the
+    first minute; the largest error and the reported σ at the end."""
+    print(
+        f"### Drift and the dashboard: {dur / 60:g}-minute camera-less sessions, seeds 0–{seeds - 1}, rows after the first minute\n"
+    )
+    print(
+        "Per angle: rows shown sure, mean; shown sure while |error| > "
+        f"{SURE_STD_DEG:g}°, % of rows, worst trial; largest |error|; reported σ at the end, mean\n"
+    )
+    print("| session | gyro bias σ | " + " | ".join(a[:-4] for a in ANGLES) + " |")
+    print("|---|---|" + "---|" * len(ANGLES))
+    for move in ("reaching", "shoulder_wheel"):
+        for bias in (0.5, 1.0):
+            r = np.zeros((seeds, len(ANGLES), 4))
+            for s in range(seeds):
+                cfg = w.WearableSimConfig(move=move, duration_s=dur, seed=s, camera=False)
+                sim = w.simulate(replace(cfg, imu=replace(cfg.imu, gyro_bias_dps=bias)))
+                rows, _ = tracker.run(_params(sim.params), w.tracker_inputs(sim.messages))
+                m = sim.t >= 60.0
+                for j, c in enumerate(ANGLES):
+                    e, sd = rows[c][m] - sim.theta_deg[m, j], rows[f"{c[:-4]}_std_deg"][m]
+                    ok = np.isfinite(e) & np.isfinite(sd)
+                    sure = sd[ok] <= SURE_STD_DEG
+                    wrong = np.mean(sure & (np.abs(e[ok]) > SURE_STD_DEG))
+                    r[s, j] = (np.mean(sure), wrong, np.max(np.abs(e[ok])), sd[-1])
+            cells = [
+                f"{100 * np.mean(r[:, j, 0]):.0f} %; {100 * np.max(r[:, j, 1]):.1f} %; "
+                f"{np.max(r[:, j, 2]):.1f}°; σ {np.mean(r[:, j, 3]):.0f}°"
+                for j in range(len(ANGLES))
+            ]
+            print(f"| {move} | {bias:g} °/s | " + " | ".join(cells) + " |")
+    print()
+
+
 def speed(dur: float) -> None:
     sim = w.simulate(w.WearableSimConfig(move="reaching", duration_s=dur, seed=0, camera=False))
     p = _params(sim.params)
@@ -770,6 +822,8 @@ def main(argv: list[str] | None = None) -> int:
         coverage(a.seeds, 30.0 if q else 60.0, a.first_seed)
     if "rom-elbow" in only:
         rom_elbow(a.seeds, a.first_seed)
+    if "drift-sure" in only:
+        drift_sure(a.seeds, 120.0 if q else 480.0)
     if "drift" in only:
         drift(60.0 if q else 120.0)
     if "speed" in only:
