@@ -87,6 +87,7 @@ PAPER_METHOD = {
     "pronation_drift_dps": 0.0,
     "vertical_init_deg": 0.0,
     "sigma_mounting_gain": 0.0,
+    "sigma_elbow_split_deg": 0.0,
 }
 PRODUCT: dict[str, Any] = {}  # what the product's rows run with (FIRST_ORDER with --first-order)
 

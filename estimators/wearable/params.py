@@ -47,8 +47,8 @@ MIRROR = np.diag([1.0, -1.0, 1.0])  # S's x–z plane: a left arm is the right o
 # confidence"): the mounting states' first-order turn, which lengthens a reading and lets an
 # accelerometer's scale error tilt the arm (shown sure while 10° off on whole simulated
 # trials), no accelerometer biases, no σ from the mounting states, and the drift bound's
-# larger start that turn needed; nor the soft-tissue and camera-offset states (added
-# 2026-12-05 too).
+# larger start that turn needed; nor the soft-tissue and camera-offset states nor the elbow's
+# σ until its split is seen (added 2026-12-05 too).
 FIRST_ORDER: dict[str, Any] = {
     "mounting_turn": "first_order",
     "acc_bias": False,
@@ -58,6 +58,7 @@ FIRST_ORDER: dict[str, Any] = {
     "vertical_init_deg": 12.0,
     "soft_tissue_sigma": 0.0,
     "camera_offset_sigma_m": 0.0,
+    "sigma_elbow_split_deg": 0.0,
 }
 
 
@@ -248,6 +249,18 @@ class WearableParams:
     sigma_mounting_change_gain: float = 1.0
     sigma_upper_change_gain: float = 0.5
     mounting_change_tau_s: float = 20.0
+    # Without a camera the elbow's flexion and the forearm IMU's turn about the elbow's axis
+    # are one quantity until the forearm turns about its own axis (pronation or supination
+    # turns that axis away from the elbow's): the EKF's P of the elbow falls below 1° anyway
+    # (the fast moves' kinematic accelerations split them, to second order, carrying scale
+    # and length errors), and the ROM moves' straight elbow was shown sure 7.5–10° off in
+    # their shoulder tests (seeds 700–839: 9 of 140 camera-less trials over 2 %). The elbow's
+    # σ adds ``sigma_elbow_split_deg`` × (1 − s), s growing by Δt·sin²θ5 / ``elbow_split_tau_s``
+    # to 1 (θ5 the estimated pronation; a camera sets it to 1; a restart to 0). 7°: the two
+    # IMUs' prior turn about the elbow's axis (√2 × ``mounting_sigma_deg``); 6 left one of
+    # those trials (13.5 %), 7 none (docs/benchmarks.md); 0: off.
+    sigma_elbow_split_deg: float = 7.0
+    elbow_split_tau_s: float = 2.0
     init_sigma_deg: float = 5.0  # prior σ of each angle at the zero pose (contract §8 "Start")
     # streams
     forearm_tolerance_s: float = 0.006  # a forearm sample this close pairs with the upper one
@@ -293,6 +306,7 @@ class WearableParams:
             "camera_offset_sigma_m",
             "sigma_mounting_change_gain",
             "sigma_upper_change_gain",
+            "sigma_elbow_split_deg",
         ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
@@ -303,6 +317,7 @@ class WearableParams:
             "axial_tau_s",
             "pronation_axial_tau_s",
             "mounting_change_tau_s",
+            "elbow_split_tau_s",
         ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):

@@ -44,7 +44,8 @@ M_T_CAM = 20  # the last step with a camera position (−inf: none yet)
 # the averages (over ``T_CHANGE_TAU``) of each angle's paired mounting departure (5,) and of
 # the upper-arm IMU's mounting states (3,): what :func:`finish` measures their change from
 M_SLOW, M_SLOW_U = 21, 26
-M_SIZE = 29
+M_SPLIT = 29  # how much of the elbow's split from the forearm IMU's turn has been seen (0–1)
+M_SIZE = 30
 # ``counts``: rejections by reason
 COUNT_NAMES = (
     "gap_restart",
@@ -82,7 +83,9 @@ T_MOUNT_SIGN = 37  # (2, 5) the sign each paired state's departure takes in the 
 # the σ from the mounting states' change (:func:`finish`): its gain, the upper arm's whole
 # turn's gain (no camera), the averages' time constant (s), the upper-arm states (3,) (−1: none)
 T_CHANGE_GAIN, T_CHANGE_U, T_CHANGE_TAU, T_MU_IDX = 47, 48, 49, 50
-T_SIZE = 53
+# the elbow's σ until its split is seen without a camera (:func:`finish`): deg, and s of turn
+T_SPLIT, T_SPLIT_TAU = 53, 54
+T_SIZE = 55
 # :func:`widen`'s scalar settings, one (6,) array (:class:`.params.WearableParams`: the
 # pronation's vertical term, deg; the rotation's doubt threshold, deg, and fading, s; the
 # straight-elbow share and its fading, s; the hanging forearm's drift, deg/s)
@@ -407,6 +410,19 @@ def finish(
         if blind and turned != 0.0:
             for j in range(2):
                 o[5 + j] = math.hypot(o[5 + j], tp[T_CHANGE_U] * math.degrees(math.sqrt(turned)))
+    if tp[T_SPLIT] > 0.0:
+        # Without a camera the elbow's flexion and the forearm IMU's turn about the elbow's
+        # axis are one quantity to gravity and the gyros until the forearm turns about its
+        # own axis (pronation turns that axis away from the elbow's); until then the EKF's P
+        # holds only what the kinematic accelerations split (second order). A camera's
+        # positions see the flexion itself.
+        if t - mon[M_T_CAM] > tp[T_CAM_HOLD]:
+            p5 = o[4]
+            s5 = math.sin(math.radians(p5)) if p5 == p5 else 0.0
+            mon[M_SPLIT] = min(1.0, mon[M_SPLIT] + ts * s5 * s5 / tp[T_SPLIT_TAU])
+            o[8] = math.hypot(o[8], tp[T_SPLIT] * (1.0 - mon[M_SPLIT]))
+        else:
+            mon[M_SPLIT] = 1.0
     if tp[T_LEFT] != 0.0:  # back from the virtual right arm (params.mirror_vectors)
         o[11] = -o[11]
         o[14] = -o[14]

@@ -128,6 +128,8 @@ def initial_state(params: WearableParams) -> TrackerState:
     tp[steps.T_CHANGE_GAIN] = params.sigma_mounting_change_gain
     tp[steps.T_CHANGE_U] = params.sigma_upper_change_gain
     tp[steps.T_CHANGE_TAU] = params.mounting_change_tau_s
+    tp[steps.T_SPLIT] = params.sigma_elbow_split_deg
+    tp[steps.T_SPLIT_TAU] = params.elbow_split_tau_s
     tp[steps.T_MU_IDX : steps.T_MU_IDX + 3] = -1
     tp[steps.T_MU_IDX : steps.T_MU_IDX + model.i_mu.size] = model.i_mu
     pairs, signs = _mounting_pairs(model, zero)
