@@ -570,19 +570,26 @@ def coverage_run(move: str, seed: int, dur: float, camera: bool, **kw: Any) -> F
     rows, _ = tracker.run(_params(sim.params, **kw), w.tracker_inputs(sim.messages))
     m = sim.t >= (6.0 if move == "shoulder_wheel" else 3.0)
     out = np.full((5, 6), np.nan)
-    for j, c in enumerate(ANGLES):
-        e, s = rows[c][m] - sim.theta_deg[m, j], rows[f"{c[:-4]}_std_deg"][m]
-        ok = np.isfinite(e) & np.isfinite(s)
-        sure = s[ok] <= SURE_STD_DEG
+    for j in range(len(ANGLES)):
+        e, s, sure = _shown(rows, sim, m, j)
         out[j] = (
-            np.mean(np.abs(e[ok]) <= 2 * s[ok]),
-            np.sqrt(np.mean(e[ok] ** 2)),
-            np.median(s[ok]),
+            np.mean(np.abs(e) <= 2 * s),
+            np.sqrt(np.mean(e**2)),
+            np.median(s),
             np.mean(sure),
-            np.mean(sure & (np.abs(e[ok]) > SURE_STD_DEG)),
-            np.mean(sure & (np.abs(e[ok]) > np.maximum(SURE_STD_DEG, 2 * s[ok]))),
+            np.mean(sure & (np.abs(e) > SURE_STD_DEG)),
+            np.mean(sure & (np.abs(e) > np.maximum(SURE_STD_DEG, 2 * s))),
         )
     return out
+
+
+def _shown(rows: dict[str, F64], sim: Any, m: Any, j: int) -> tuple[F64, F64, Any]:
+    """Angle ``j``'s error and reported σ (deg) on the rows ``m`` where both are finite, and
+    which of them the dashboard shows sure (σ ≤ ``SURE_STD_DEG``)."""
+    c = ANGLES[j]
+    e, s = rows[c][m] - sim.theta_deg[m, j], rows[f"{c[:-4]}_std_deg"][m]
+    ok = np.isfinite(e) & np.isfinite(s)
+    return e[ok], s[ok], s[ok] <= SURE_STD_DEG
 
 
 def coverage(seeds: int, dur: float, first: int = 100) -> None:
@@ -748,11 +755,10 @@ def drift_sure(seeds: int, dur: float) -> None:
                 rows, _ = tracker.run(_params(sim.params), w.tracker_inputs(sim.messages))
                 m = sim.t >= 60.0
                 for j, c in enumerate(ANGLES):
-                    e, sd = rows[c][m] - sim.theta_deg[m, j], rows[f"{c[:-4]}_std_deg"][m]
-                    ok = np.isfinite(e) & np.isfinite(sd)
-                    sure = sd[ok] <= SURE_STD_DEG
-                    wrong = np.mean(sure & (np.abs(e[ok]) > SURE_STD_DEG))
-                    r[s, j] = (np.mean(sure), wrong, np.max(np.abs(e[ok])), sd[-1])
+                    e, _, sure = _shown(rows, sim, m, j)
+                    wrong = np.mean(sure & (np.abs(e) > SURE_STD_DEG))
+                    end = rows[f"{c[:-4]}_std_deg"][-1]
+                    r[s, j] = (np.mean(sure), wrong, np.max(np.abs(e)), end)
             cells = [
                 f"{100 * np.mean(r[:, j, 0]):.0f} %; {100 * np.max(r[:, j, 1]):.1f} %; "
                 f"{np.max(r[:, j, 2]):.1f}°; σ {np.mean(r[:, j, 3]):.0f}°"

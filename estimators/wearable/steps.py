@@ -380,8 +380,8 @@ def finish(
     o = kernel.emit(x, P, ia, fa, math.radians(mon[M_VERT]))
     if avail & HAVE_ELBOW:
         mon[M_T_CAM] = t
+    blind = t - mon[M_T_CAM] > tp[T_CAM_HOLD]  # no camera position for a while (or at all)
     if tp[T_MOUNT_GAIN] > 0.0:
-        blind = t - mon[M_T_CAM] > tp[T_CAM_HOLD]  # (params: no camera)
         # a mounting state that has just moved is being learnt again: the change from its
         # average over T_CHANGE_TAU (first step: from nominal, as the states start there)
         a = min(1.0, ts / tp[T_CHANGE_TAU])
@@ -416,7 +416,7 @@ def finish(
         # own axis (pronation turns that axis away from the elbow's); until then the EKF's P
         # holds only what the kinematic accelerations split (second order). A camera's
         # positions see the flexion itself.
-        if t - mon[M_T_CAM] > tp[T_CAM_HOLD]:
+        if blind:
             p5 = o[4]
             s5 = math.sin(math.radians(p5)) if p5 == p5 else 0.0
             mon[M_SPLIT] = min(1.0, mon[M_SPLIT] + ts * s5 * s5 / tp[T_SPLIT_TAU])
