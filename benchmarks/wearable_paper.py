@@ -88,6 +88,8 @@ PAPER_METHOD = {
     "vertical_init_deg": 0.0,
     "sigma_mounting_gain": 0.0,
     "sigma_elbow_split_deg": 0.0,
+    "sigma_dropout_share": 0.0,
+    "sigma_camera_disagree_gain": 0.0,
 }
 PRODUCT: dict[str, Any] = {}  # what the product's rows run with (FIRST_ORDER with --first-order)
 

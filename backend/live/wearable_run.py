@@ -293,8 +293,8 @@ MESSAGES = {  # what a flag of the newest row means, for the therapist
 
 
 CAMERA_OUT = (
-    "The camera dropped out: the arm's turn about the vertical is carried by the gyros "
-    "alone and its uncertainty grows."
+    "The camera dropped out: the angles are carried by the IMUs alone, and their uncertainty "
+    "grows as the arm moves."
 )
 
 

@@ -751,6 +751,62 @@ def ekf_step_packed(x: Any, P: Any, ts: float, z: Any, have: Any, ia: Any, fa: A
     )
 
 
+@jit_inline
+def camera_offsets(x: Any, ia: Any) -> Any:
+    """The camera's joint-centre offset states in ``x`` (elbow xyz, wrist xyz in S, m; 0 where
+    the model has none): what :func:`measure` adds to its position rows."""
+    off = np.zeros(6)
+    for c in range(3):
+        for r, slot in ((0, ELBOW), (1, WRIST)):
+            k = ia[_IA_BIAS + 3 * slot + c]
+            if k >= 0:
+                off[3 * r + c] = x[k]
+    return off
+
+
+@jit
+def camera_angles(
+    theta: Any, lu: float, lf: float, z: Any, wrist: bool, off: Any, ridge: float
+) -> Any:
+    """The change of θ0…θ3 (4,) rad that explains the camera's positions ``z`` (6, 3) slots
+    (elbow, and the wrist if ``wrist``), less the offsets ``off`` (6,) m, against the pose at
+    ``θ`` (5,) rad: least squares on the chain's position Jacobian (eq. 11's joint axes through
+    the shoulder and elbow) with ``ridge`` m² per rad², so that an angle that hardly moves the
+    points (rotation with the elbow straight) takes none of the residual."""
+    axes, _, _, elbow, wrist_p = pose(theta, lu, lf)
+    J = np.zeros((6, 4))
+    r = np.zeros(6)
+    fore = np.empty(3)
+    for c in range(3):
+        r[c] = z[ELBOW, c] - off[c] - elbow[c]
+        fore[c] = wrist_p[c] - elbow[c]
+    col = np.empty(3)
+    for j in range(3):
+        cross(axes[j], elbow, col)
+        J[0:3, j] = col
+    if wrist:
+        for c in range(3):
+            r[3 + c] = z[WRIST, c] - off[3 + c] - wrist_p[c]
+        for j in range(3):
+            cross(axes[j], wrist_p, col)
+            J[3:6, j] = col
+        cross(axes[3], fore, col)
+        J[3:6, 3] = col
+    A = J.T @ J
+    for j in range(4):
+        A[j, j] += ridge
+    L = _cholesky(A)
+    b = (J.T @ r).reshape((4, 1)).copy()
+    _forward(L, b)  # L y = Jᵀ r, then Lᵀ d = y
+    d = np.empty(4)
+    for i in range(3, -1, -1):
+        acc = b[i, 0]
+        for k in range(i + 1, 4):
+            acc -= L[k, i] * d[k]
+        d[i] = acc / L[i, i]
+    return d
+
+
 @jit
 def emit(x: Any, P: Any, ia: Any, fa: Any, vertical_rad: float) -> Any:
     """:func:`outputs` as one array (17,): θ (5), σ (5) in degrees, elbow, wrist (3) m, the σ

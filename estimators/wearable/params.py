@@ -59,6 +59,8 @@ FIRST_ORDER: dict[str, Any] = {
     "soft_tissue_sigma": 0.0,
     "camera_offset_sigma_m": 0.0,
     "sigma_elbow_split_deg": 0.0,
+    "sigma_dropout_share": 0.0,
+    "sigma_camera_disagree_gain": 0.0,
 }
 
 
@@ -261,6 +263,21 @@ class WearableParams:
     # those trials (13.5 %), 7 none (docs/benchmarks.md); 0: off.
     sigma_elbow_split_deg: float = 7.0
     elbow_split_tau_s: float = 2.0
+    # A camera that drops out: the IMUs' mountings, which its positions were correcting, carry
+    # the angles alone, and the EKF's σ of the elbow (0.35° with a camera) does not grow with
+    # what they carry (ROM moves, seed 935: the elbow slid 2 → 9° off in a 2-s dropout, and the
+    # camera, back, pulled it back only over seconds). Once a camera has been seen, θ0…θ3's σ
+    # adds, while it is away, ``sigma_dropout_share`` × their motion since its last position
+    # (deg per deg, up to ``sigma_dropout_cap_deg``), and with its positions
+    # ``sigma_camera_disagree_gain`` × their disagreement with the estimate (the change of
+    # θ0…θ3 that explains them, least squares, averaged over ``camera_disagree_tau_s``, against
+    # the camera's offset states as averaged over ``camera_offset_tau_s``: the EKF explains
+    # part of an angle's error by moving those constants); 0: off.
+    sigma_dropout_share: float = 0.1
+    sigma_dropout_cap_deg: float = 10.0
+    sigma_camera_disagree_gain: float = 1.0
+    camera_disagree_tau_s: float = 0.5
+    camera_offset_tau_s: float = 20.0
     init_sigma_deg: float = 5.0  # prior σ of each angle at the zero pose (contract §8 "Start")
     # streams
     forearm_tolerance_s: float = 0.006  # a forearm sample this close pairs with the upper one
@@ -307,6 +324,9 @@ class WearableParams:
             "sigma_mounting_change_gain",
             "sigma_upper_change_gain",
             "sigma_elbow_split_deg",
+            "sigma_dropout_share",
+            "sigma_dropout_cap_deg",
+            "sigma_camera_disagree_gain",
         ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
@@ -318,6 +338,8 @@ class WearableParams:
             "pronation_axial_tau_s",
             "mounting_change_tau_s",
             "elbow_split_tau_s",
+            "camera_disagree_tau_s",
+            "camera_offset_tau_s",
         ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):

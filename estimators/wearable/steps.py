@@ -3,10 +3,10 @@
 :mod:`.tracker` pairs the streams in Python and hands each message's steps here as arrays:
 :func:`begin` (the restart after a gap), the filter's step, :func:`finish` (the drift bound
 about the vertical, the start's rest and mounting check of contract §8 "Start", the innovation
-monitor and the row's numbers). :func:`track` loops the three over a message's steps inside
-numba with the EKF (:func:`.kernel.ekf_step_packed`, the same step a single call runs); the UKF
-calls :func:`begin` and :func:`finish` around its Python update. A step's numbers do not
-depend on how the steps were grouped into calls.
+monitor, the σ terms and the row's numbers). :func:`track` loops the three over a message's
+steps inside numba with the EKF (:func:`.kernel.ekf_step_packed`, the same step a single call
+runs); the UKF calls :func:`begin` and :func:`finish` around its Python update. A step's
+numbers do not depend on how the steps were grouped into calls.
 
 The state between calls is three arrays: ``mon`` (layout ``M_*``), the innovation window
 ``nis_buf`` (a ring of ``nis_window`` values) and ``counts`` (rejections by reason, ``C_*``;
@@ -45,7 +45,11 @@ M_T_CAM = 20  # the last step with a camera position (−inf: none yet)
 # the upper-arm IMU's mounting states (3,): what :func:`finish` measures their change from
 M_SLOW, M_SLOW_U = 21, 26
 M_SPLIT = 29  # how much of the elbow's split from the forearm IMU's turn has been seen (0–1)
-M_SIZE = 30
+# the camera against the estimate: θ0…θ3's disagreement (4,) rad, averaged; the offsets'
+# average (6,) m and whether it has begun; the σ grown while the camera is away (deg); the
+# last row's θ0…θ3 (4,) deg and whether there is one
+M_DIS, M_OFF_SLOW, M_OFF_N, M_DROP, M_PREV, M_PREV_OK = 30, 34, 40, 41, 42, 46
+M_SIZE = 47
 # ``counts``: rejections by reason
 COUNT_NAMES = (
     "gap_restart",
@@ -85,7 +89,10 @@ T_MOUNT_SIGN = 37  # (2, 5) the sign each paired state's departure takes in the 
 T_CHANGE_GAIN, T_CHANGE_U, T_CHANGE_TAU, T_MU_IDX = 47, 48, 49, 50
 # the elbow's σ until its split is seen without a camera (:func:`finish`): deg, and s of turn
 T_SPLIT, T_SPLIT_TAU = 53, 54
-T_SIZE = 55
+# the camera's disagreement (:func:`finish`): its gain, its average's and the offsets' average's
+# time constants (s); the σ's share of the arm's motion while the camera is away, and its cap
+T_DIS_GAIN, T_DIS_TAU, T_OFF_TAU, T_DROP_SHARE, T_DROP_CAP = 55, 56, 57, 58, 59
+T_SIZE = 60
 # :func:`widen`'s scalar settings, one (6,) array (:class:`.params.WearableParams`: the
 # pronation's vertical term, deg; the rotation's doubt threshold, deg, and fading, s; the
 # straight-elbow share and its fading, s; the hanging forearm's drift, deg/s)
@@ -378,6 +385,7 @@ def finish(
     if t - mon[M_T_START] < tp[T_REST_S]:
         flags |= INITIALISING
     o = kernel.emit(x, P, ia, fa, math.radians(mon[M_VERT]))
+    since = t - mon[M_T_CAM]  # since the last camera position (inf: none yet)
     if avail & HAVE_ELBOW:
         mon[M_T_CAM] = t
     blind = t - mon[M_T_CAM] > tp[T_CAM_HOLD]  # no camera position for a while (or at all)
@@ -423,6 +431,8 @@ def finish(
             o[8] = math.hypot(o[8], tp[T_SPLIT] * (1.0 - mon[M_SPLIT]))
         else:
             mon[M_SPLIT] = 1.0
+    if tp[T_DIS_GAIN] > 0.0 or tp[T_DROP_SHARE] > 0.0:
+        _camera_doubt(x, mon, tp, since, z, avail, blind, o, ia, fa)
     if tp[T_LEFT] != 0.0:  # back from the virtual right arm (params.mirror_vectors)
         o[11] = -o[11]
         o[14] = -o[14]
@@ -440,6 +450,62 @@ def finish(
     # gyros alone, contract §8 "Start"): the EKF's σ of it and the drift bound
     out[17, i] = math.hypot(o[16], mon[M_VERT])
     out[18, i] = flags
+
+
+@jit
+def _camera_doubt(
+    x: Any,
+    mon: Any,
+    tp: Any,
+    since: float,
+    z: Any,
+    avail: int,
+    blind: bool,
+    o: Any,
+    ia: Any,
+    fa: Any,
+) -> None:
+    """θ0…θ3's σ in ``o`` (:func:`kernel.emit`'s) once a camera has been seen: with its
+    positions, their disagreement with the estimate; while it is away, a share of the arm's
+    motion since (the camera corrected the IMUs' mountings, which now carry the angles alone:
+    after a 2-s dropout in the ROM moves the elbow came back 9° off, and the EKF's σ of it,
+    0.35°, let the camera pull it back only over seconds)."""
+    if mon[M_OFF_N] == 0.0 and not avail & HAVE_ELBOW:
+        return  # no camera yet (a camera-less session: never)
+    moved = 0.0
+    for j in range(4):
+        if mon[M_PREV_OK] != 0.0:
+            moved += abs(o[j] - mon[M_PREV + j])
+        mon[M_PREV + j] = o[j]
+    mon[M_PREV_OK] = 1.0
+    if avail & HAVE_ELBOW:
+        # against the offsets as averaged over T_OFF_TAU: the EKF explains part of an angle's
+        # error by moving the camera's offset states (constants), away from that average
+        off = kernel.camera_offsets(x, ia)
+        a = min(1.0, since / tp[T_OFF_TAU])
+        for c in range(6):
+            if mon[M_OFF_N] == 0.0:
+                mon[M_OFF_SLOW + c] = off[c]
+            else:
+                mon[M_OFF_SLOW + c] += a * (off[c] - mon[M_OFF_SLOW + c])
+        mon[M_OFF_N] = 1.0
+        th = np.empty(5)
+        for j in range(5):
+            th[j] = math.radians(o[j])
+        # ridge: a prior of 0.3 rad on each angle's share, in the camera's noise (σp/0.3)²
+        ridge = (tp[T_SIGMA_POS] / 0.3) ** 2
+        d = kernel.camera_angles(
+            th, fa[0], fa[1], z, (avail & HAVE_WRIST) != 0, mon[M_OFF_SLOW : M_OFF_SLOW + 6], ridge
+        )
+        a = min(1.0, since / tp[T_DIS_TAU])
+        for j in range(4):
+            mon[M_DIS + j] += a * (d[j] - mon[M_DIS + j])
+        mon[M_DROP] = 0.0
+    else:
+        mon[M_DROP] = min(tp[T_DROP_CAP], mon[M_DROP] + tp[T_DROP_SHARE] * moved)
+    for j in range(4):
+        dis = 0.0 if blind else tp[T_DIS_GAIN] * math.degrees(abs(mon[M_DIS + j]))
+        o[5 + j] = math.hypot(o[5 + j], math.hypot(dis, mon[M_DROP]))
 
 
 @jit

@@ -130,6 +130,11 @@ def initial_state(params: WearableParams) -> TrackerState:
     tp[steps.T_CHANGE_TAU] = params.mounting_change_tau_s
     tp[steps.T_SPLIT] = params.sigma_elbow_split_deg
     tp[steps.T_SPLIT_TAU] = params.elbow_split_tau_s
+    tp[steps.T_DIS_GAIN] = params.sigma_camera_disagree_gain
+    tp[steps.T_DIS_TAU] = params.camera_disagree_tau_s
+    tp[steps.T_OFF_TAU] = params.camera_offset_tau_s
+    tp[steps.T_DROP_SHARE] = params.sigma_dropout_share
+    tp[steps.T_DROP_CAP] = params.sigma_dropout_cap_deg
     tp[steps.T_MU_IDX : steps.T_MU_IDX + 3] = -1
     tp[steps.T_MU_IDX : steps.T_MU_IDX + model.i_mu.size] = model.i_mu
     pairs, signs = _mounting_pairs(model, zero)
