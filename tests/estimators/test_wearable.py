@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from estimators.wearable import dh, steps, tracker
+from estimators.wearable import dh, kernel, steps, tracker
 from estimators.wearable.model import Measurement, Model
 from estimators.wearable.params import WearableParams, WearableParamsError
 from simulator.wearable_arm import Mount, imu_readings, joint_positions
@@ -869,3 +869,37 @@ def test_a_camera_dropout_is_not_shown_sure():
     b = tracker.run(WearableParams.from_json(sim.params, **off), inputs)[0]
     for k in a:
         np.testing.assert_array_equal(a[k], b[k])
+
+
+def test_camera_angles_explain_the_camera_by_a_change_of_pose():
+    """The disagreement's least squares (``kernel.camera_angles``): positions of a pose a few
+    degrees away give those degrees back (to second order), the offsets it is given are taken
+    off first, and an angle that does not move the points (rotation with the elbow straight)
+    takes none of the residual."""
+    lu, lf = 0.30, 0.25
+    th = np.radians([30.0, 20.0, 40.0, 60.0, 10.0])
+    delta = np.radians([2.0, -1.5, 3.0, -2.5])
+
+    def camera(theta, off):
+        _, _, _, elbow, wrist = kernel.pose(theta, lu, lf)
+        z = np.zeros((6, 3))
+        z[kernel.ELBOW], z[kernel.WRIST] = elbow + off[:3], wrist + off[3:]
+        return z
+
+    moved = th.copy()
+    moved[:4] += delta
+    none = np.zeros(6)
+    d = kernel.camera_angles(th, lu, lf, camera(moved, none), True, none, 1e-9)
+    np.testing.assert_allclose(np.degrees(d), np.degrees(delta), atol=0.25)
+    off = np.array([0.01, -0.02, 0.005, 0.0, 0.015, -0.01])
+    d_off = kernel.camera_angles(th, lu, lf, camera(moved, off), True, off, 1e-9)
+    np.testing.assert_allclose(d_off, d, atol=1e-12)
+    straight = np.zeros(5)
+    turned = straight.copy()
+    turned[2] = np.radians(5.0)  # rotation alone, elbow extended: the points do not move
+    d0 = kernel.camera_angles(straight, lu, lf, camera(turned, none), True, none, 1e-3)
+    assert abs(np.degrees(d0[2])) < 1e-6
+    bent = straight.copy()
+    bent[3] = np.radians(4.0)  # the elbow alone: its own angle, not the shoulder's
+    d1 = kernel.camera_angles(straight, lu, lf, camera(bent, none), True, none, 1e-9)
+    assert abs(np.degrees(d1[3]) - 4.0) < 0.1 and np.all(np.abs(np.degrees(d1[:3])) < 0.1)
