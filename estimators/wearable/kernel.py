@@ -795,16 +795,7 @@ def camera_angles(
     A = J.T @ J
     for j in range(4):
         A[j, j] += ridge
-    L = _cholesky(A)
-    b = (J.T @ r).reshape((4, 1)).copy()
-    _forward(L, b)  # L y = Jᵀ r, then Lᵀ d = y
-    d = np.empty(4)
-    for i in range(3, -1, -1):
-        acc = b[i, 0]
-        for k in range(i + 1, 4):
-            acc -= L[k, i] * d[k]
-        d[i] = acc / L[i, i]
-    return d
+    return np.linalg.solve(A, J.T @ r)
 
 
 @jit

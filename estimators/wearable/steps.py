@@ -46,10 +46,10 @@ M_T_CAM = 20  # the last step with a camera position (−inf: none yet)
 M_SLOW, M_SLOW_U = 21, 26
 M_SPLIT = 29  # how much of the elbow's split from the forearm IMU's turn has been seen (0–1)
 # the camera against the estimate: θ0…θ3's disagreement (4,) rad, averaged; the offsets'
-# average (6,) m and whether it has begun; the σ grown while the camera is away (deg); the
-# last row's θ0…θ3 (4,) deg and whether there is one
-M_DIS, M_OFF_SLOW, M_OFF_N, M_DROP, M_PREV, M_PREV_OK = 30, 34, 40, 41, 42, 46
-M_SIZE = 47
+# average (6,) m; whether a camera position has come since the (re)start; the σ grown while
+# the camera is away (deg); the last row's θ0…θ3 (4,) deg, kept from then on
+M_DIS, M_OFF_SLOW, M_CAM_SEEN, M_DROP, M_PREV = 30, 34, 40, 41, 42
+M_SIZE = 46
 # ``counts``: rejections by reason
 COUNT_NAMES = (
     "gap_restart",
@@ -470,25 +470,25 @@ def _camera_doubt(
     motion since (the camera corrected the IMUs' mountings, which now carry the angles alone:
     after a 2-s dropout in the ROM moves the elbow came back 9° off, and the EKF's σ of it,
     0.35°, let the camera pull it back only over seconds)."""
-    if mon[M_OFF_N] == 0.0 and not avail & HAVE_ELBOW:
+    seen = mon[M_CAM_SEEN] != 0.0
+    if not seen and not avail & HAVE_ELBOW:
         return  # no camera yet (a camera-less session: never)
     moved = 0.0
     for j in range(4):
-        if mon[M_PREV_OK] != 0.0:
+        if seen:
             moved += abs(o[j] - mon[M_PREV + j])
         mon[M_PREV + j] = o[j]
-    mon[M_PREV_OK] = 1.0
     if avail & HAVE_ELBOW:
         # against the offsets as averaged over T_OFF_TAU: the EKF explains part of an angle's
         # error by moving the camera's offset states (constants), away from that average
         off = kernel.camera_offsets(x, ia)
         a = min(1.0, since / tp[T_OFF_TAU])
         for c in range(6):
-            if mon[M_OFF_N] == 0.0:
-                mon[M_OFF_SLOW + c] = off[c]
-            else:
+            if seen:
                 mon[M_OFF_SLOW + c] += a * (off[c] - mon[M_OFF_SLOW + c])
-        mon[M_OFF_N] = 1.0
+            else:
+                mon[M_OFF_SLOW + c] = off[c]
+        mon[M_CAM_SEEN] = 1.0
         th = np.empty(5)
         for j in range(5):
             th[j] = math.radians(o[j])
